@@ -1,0 +1,34 @@
+"""nitsche: constrained problems of solid mechanics by the general Nitsche method.
+
+Declare the energy J(u), the constraint g(u) >= 0 (or = 0) and where it acts,
+the multiplier lambda(u) and the scaling alpha = alpha0 h^k / stiffness; the
+library builds J_h, differentiates it with JAX and minimizes it with Newton.
+"""
+import os
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+_cache = os.environ.get("NITSCHE_JAX_CACHE", os.path.expanduser("~/.cache/nitsche/jax"))
+if _cache != "off":
+    jax.config.update("jax_compilation_cache_dir", _cache)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+
+from .fields import Field  # noqa: E402
+from .measures import cells, facets  # noqa: E402
+from .functional import Scaling, Integral, Equality, Inequality, Penalty, Constraint  # noqa: E402
+from .problem import Problem, StabilityWarning  # noqa: E402
+from .newton import Result, NotConverged  # noqa: E402
+from .jets import DerivativeError  # noqa: E402
+from . import ops  # noqa: E402
+
+
+def minimize(energy, fields, constraints=(), x0=None, **options):
+    """Build the problem and run Newton's method: the one-call form of the API."""
+    return Problem(fields, energy, constraints).minimize(x0, **options)
+
+
+__all__ = ["Field", "cells", "facets", "Scaling", "Integral", "Equality", "Inequality",
+           "Penalty", "Constraint", "Problem", "Result", "NotConverged", "StabilityWarning",
+           "DerivativeError", "ops", "minimize"]

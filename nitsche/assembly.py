@@ -1,0 +1,263 @@
+"""Energy, gradient and Hessian assembly by automatic differentiation at quadrature points.
+
+A term is a pointwise density w(z) of the local jet vector z (the used value and
+derivative components of its fields) integrated on a measure.  With
+z[e, q] = T[e, q] u_e (T: basis tabulation, u_e: element dofs),
+
+    energy_e = sum_q W w,   grad_e = sum_q W T^T dw/dz,   hess_e = sum_q W T^T d2w/dz2 T.
+
+The pointwise derivatives come from jax.grad / jax.hessian, vmapped over all
+points and jitted on fixed-size chunks of elements, so one compiled kernel
+serves every Newton step and every refinement level.  The sparsity pattern and
+the scatter map into CSR storage are computed once per mesh.
+"""
+import copy
+import hashlib
+import time
+import types
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+
+from .jets import Jet
+
+CHUNK_POINTS = 2 ** 15  # quadrature points per kernel call
+_COMPILED = {}
+compile_seconds = [0.0]  # compilation time spent in this process
+
+
+def fingerprint(obj, depth=0):
+    """A hashable key equal for functions with the same code and closure values."""
+    if depth > 10:
+        return ("id", id(obj))
+    if obj is None or isinstance(obj, (bool, int, float, complex, str, bytes)):
+        return (type(obj).__name__, obj)
+    if isinstance(obj, np.ndarray):
+        return ("nd", obj.shape, obj.dtype.str, hashlib.sha1(np.ascontiguousarray(obj).tobytes()).hexdigest())
+    if isinstance(obj, (tuple, list)):
+        return (type(obj).__name__,) + tuple(fingerprint(o, depth + 1) for o in obj)
+    if isinstance(obj, dict):
+        return ("dict",) + tuple((k, fingerprint(v, depth + 1)) for k, v in sorted(obj.items(), key=lambda kv: str(kv[0])))
+    if isinstance(obj, types.FunctionType):
+        cells = tuple(fingerprint(c.cell_contents, depth + 1) for c in (obj.__closure__ or ()))
+        return ("fn", obj.__code__, cells, fingerprint(obj.__defaults__, depth + 1))
+    if isinstance(obj, types.ModuleType):
+        return ("module", obj.__name__)
+    return ("id", id(obj))
+
+
+def _pad(a, n):
+    """Pad axis 0 to length n by repeating the last entry (padding results are discarded)."""
+    if a.shape[0] == n:
+        return a
+    return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
+
+
+class Term:
+    """A pointwise density integrated on a measure, ready to assemble."""
+
+    def __init__(self, pointwise, names, measure, fields, offsets, label):
+        by_name = {f.name: f for f in fields}
+        unknown = [k for k in names if k not in by_name and k not in ("x", "n", "h")]
+        if unknown:
+            raise ValueError(f"{label}: unknown argument(s) {unknown}; a density takes fields "
+                             f"{sorted(by_name)} and x (point), n (normal), h (mesh size)")
+        if "n" in names and measure.normals is None:
+            raise ValueError(f"{label} uses the normal n but is integrated over cells; "
+                             "use a facet measure")
+        self.label, self.measure = label, measure
+        self.pointwise = pointwise
+        fs = [by_name[k] for k in names if k in by_name]
+        for f in fs:
+            measure.attach(f)
+        W = measure.weights
+        self.nel, self.nq = W.shape
+        x = measure.points
+        self.dim = x.shape[0]
+        n = measure.normals
+        self.has_normal = n is not None
+        self.layout = self._record(fs)
+        if not self.layout:
+            raise ValueError(f"{label} does not depend on any field")
+        self.fields = [by_name[name] for name, _, _ in self.layout]
+        self.chunk = max(1, CHUNK_POINTS // self.nq)
+        npad = -(-self.nel // self.chunk) * self.chunk
+        self.T, self.dofs = [], []
+        for (name, parts, _) in self.layout:
+            T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
+            self.T.append(_pad(T, npad))
+            self.dofs.append(dofs)
+        self.field_dofs = [d + offsets[f.name] for d, f in zip(self.dofs, self.fields)]
+        self.global_dofs = np.concatenate(self.field_dofs, axis=1)
+        self.W = _pad(W, npad)
+        self.x = _pad(np.ascontiguousarray(np.moveaxis(x, 0, -1)), npad)
+        self.n = _pad(np.ascontiguousarray(np.moveaxis(n, 0, -1)), npad) if self.has_normal \
+            else np.zeros((npad, self.nq, self.dim))
+        self.h = _pad(np.asarray(measure.h, dtype=float), npad)
+        self.npad = npad
+        self._kernels = {}
+
+    def _record(self, fs):
+        """Which derivative orders of which field the density uses (by tracing it once)."""
+        used = {f.name: set() for f in fs}
+        shapes = {f.name: dict(zip(f.orders, self.measure.shapes(f, f.orders))) for f in fs}
+
+        def trace(zs, x, n, h):
+            args = {"x": x, "n": n, "h": h}
+            for f in fs:
+                args[f.name] = Jet(f.name, zs[f.name], f.orders, used[f.name])
+            return self.pointwise(args)
+
+        zs = {f.name: {o: jax.ShapeDtypeStruct(s, jnp.float64) for o, s in shapes[f.name].items()}
+              for f in fs}
+        vec = jax.ShapeDtypeStruct((self.dim,), jnp.float64)
+        out = jax.eval_shape(trace, zs, vec, vec, jax.ShapeDtypeStruct((), jnp.float64))
+        if hasattr(out, "shape") and out.shape != ():
+            raise ValueError(f"{self.label} must return a scalar at each point, not shape {out.shape}")
+        layout = []
+        for f in fs:
+            parts, start = [], 0
+            for o in sorted(used[f.name]):
+                size = int(np.prod(shapes[f.name][o], dtype=int))
+                parts.append((o, tuple(shapes[f.name][o]), start, size))
+                start += size
+            if parts:
+                layout.append((f.name, tuple(parts), tuple(sorted(used[f.name]))))
+        return layout
+
+    def with_pointwise(self, pointwise):
+        """The same term (same tabulations) with another density of the same jets."""
+        other = copy.copy(self)
+        other.pointwise, other._kernels = pointwise, {}
+        return other
+
+    @property
+    def sizes(self):
+        return [(sum(p[3] for p in parts), T.shape[-1]) for (_, parts, _), T in zip(self.layout, self.T)]
+
+    def _point_fn(self):
+        layout, pointwise = self.layout, self.pointwise
+        offsets = np.cumsum([0] + [m for m, _ in self.sizes])
+
+        def f(z, x, n, h):
+            args = {"x": x, "n": n, "h": h}
+            for (name, parts, provided), off in zip(layout, offsets):
+                args[name] = Jet(name, {o: z[off + s: off + s + size].reshape(shape)
+                                        for o, shape, s, size in parts}, provided)
+            return pointwise(args)
+        return f
+
+    def kernel(self, kind):
+        """The compiled chunk kernel: 'energy', 'full' (energy, gradient, Hessian) or 'values'."""
+        if kind in self._kernels:
+            return self._kernels[kind]
+        key = (kind, fingerprint(self.pointwise), tuple(self.layout), self.chunk, self.nq,
+               self.dim, self.has_normal)
+        if key not in _COMPILED:
+            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq)
+            args = [jax.ShapeDtypeStruct((self.chunk,) + T.shape[1:], jnp.float64) for T in self.T]
+            args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
+            args += [jax.ShapeDtypeStruct((self.chunk,) + a.shape[1:], jnp.float64)
+                     for a in (self.W, self.x, self.n, self.h)]
+            t = time.perf_counter()
+            _COMPILED[key] = jax.jit(fn).lower(*args).compile()
+            compile_seconds[0] += time.perf_counter() - t
+        self._kernels[kind] = _COMPILED[key]
+        return self._kernels[kind]
+
+    def run(self, kind, x):
+        """Apply a kernel to all elements for the global dof vector x."""
+        kern = self.kernel(kind)
+        us = [_pad(x[d], self.npad) for d in self.field_dofs]
+        outs = []
+        for s in range(0, self.npad, self.chunk):
+            sl = slice(s, s + self.chunk)
+            outs.append(kern(*[T[sl] for T in self.T], *[u[sl] for u in us],
+                             self.W[sl], self.x[sl], self.n[sl], self.h[sl]))
+        return [np.concatenate([np.asarray(o[i]) for o in outs])[:self.nel] for i in range(len(outs[0]))]
+
+
+def _build(kind, point_fn, sizes, chunk, nq):
+    m = sum(mf for mf, _ in sizes)
+    nf = len(sizes)
+
+    def jets(Ts, us):
+        return jnp.concatenate([jnp.einsum("eqck,ek->eqc", T, u) for T, u in zip(Ts, us)], axis=-1)
+
+    def points(W, x, n, h):
+        return (x.reshape(chunk * nq, -1), n.reshape(chunk * nq, -1), jnp.repeat(h, nq))
+
+    def block_T(Ts):
+        if nf == 1:
+            return Ts[0]
+        blocks = []
+        for i, T in enumerate(Ts):
+            row = [T if j == i else jnp.zeros(T.shape[:3] + (Ts[j].shape[-1],)) for j in range(nf)]
+            blocks.append(jnp.concatenate(row, axis=-1))
+        return jnp.concatenate(blocks, axis=2)
+
+    def energy(*a):
+        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        z = jets(Ts, us).reshape(chunk * nq, m)
+        w = jax.vmap(point_fn)(z, *points(W, x, n, h)).reshape(chunk, nq)
+        return (jnp.sum(W * w, axis=1),)
+
+    def full(*a):
+        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        z = jets(Ts, us).reshape(chunk * nq, m)
+        px = points(W, x, n, h)
+        w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *px)
+        d2w = jax.vmap(jax.hessian(point_fn))(z, *px)
+        T = block_T(Ts)
+        Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
+        Wd2w = W[..., None, None] * d2w.reshape(chunk, nq, m, m)
+        g = jnp.einsum("eqc,eqck->ek", Wdw, T)
+        H = jnp.einsum("eqck,eqcd,eqdl->ekl", T, Wd2w, T)
+        return jnp.sum(W * w.reshape(chunk, nq), axis=1), g, H
+
+    def values(*a):
+        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        z = jets(Ts, us).reshape(chunk * nq, m)
+        out = jax.vmap(point_fn)(z, *points(W, x, n, h))
+        return tuple(o.reshape(chunk, nq) for o in out)
+
+    return {"energy": energy, "full": full, "values": values}[kind]
+
+
+class Assembler:
+    """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms."""
+
+    def __init__(self, terms, ndofs):
+        self.terms, self.ndofs = terms, ndofs
+        rows = [np.repeat(t.global_dofs, t.global_dofs.shape[1], axis=1).ravel() for t in terms]
+        cols = [np.tile(t.global_dofs, (1, t.global_dofs.shape[1])).ravel() for t in terms]
+        keys = np.concatenate(rows) * np.int64(ndofs) + np.concatenate(cols)
+        unique, inverse = np.unique(keys, return_inverse=True)
+        self.indices = (unique % ndofs).astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(unique // ndofs, minlength=ndofs))])
+        self.nnz = unique.size
+        bounds = np.cumsum([0] + [r.size for r in rows])
+        self.scatter = [inverse[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def energy(self, x, terms=None):
+        return float(sum(t.run("energy", x)[0].sum() for t in (terms or self.terms)))
+
+    def evaluate(self, x, terms=None):
+        """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian."""
+        E, grad, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
+        for t, idx in zip(self.terms, self.scatter):
+            if terms is not None and t not in terms:
+                continue
+            e, g, H = t.run("full", x)
+            E += float(e.sum())
+            grad += np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
+            data += np.bincount(idx, weights=H.ravel(), minlength=self.nnz)
+        return E, grad, data
+
+    def matrix(self, data):
+        return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.ndofs, self.ndofs))
+
+    def hessian(self, x, terms=None):
+        return self.matrix(self.evaluate(x, terms)[2])
