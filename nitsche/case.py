@@ -1,0 +1,105 @@
+"""Ready cases: a problem of the paper as a module, run at any level and degree.
+
+A case module defines
+    NAME, SUMMARY            the name on the command line and one line about it
+    PARAMETERS               {name: (default, help)}; every physical and numerical parameter
+    DEGREES                  the polynomial degrees it supports
+    RATE                     {degree: expected energy-norm rate}
+    build(level, degree, p)  -> dict(fields=..., energy=..., constraints=...) for nitsche.Problem,
+                                p a namespace of the parameters; level = uniform refinements
+and optionally
+    errors(problem, result, p) -> {name: error against an exact solution}
+"""
+import argparse
+import math
+from types import SimpleNamespace
+
+from .problem import Problem
+
+
+class ParameterError(ValueError):
+    """An unknown parameter name or a bad value."""
+
+
+class Case:
+    def __init__(self, module):
+        self.module = module
+        self.name, self.summary = module.NAME, module.SUMMARY
+        self.defaults = dict(module.PARAMETERS)
+        self.degrees = tuple(module.DEGREES)
+
+    def help(self):
+        lines = [f"{self.name}: {self.summary}", f"degrees: {', '.join(map(str, self.degrees))}",
+                 "parameters (--set name=value):"]
+        for k, (default, text) in self.defaults.items():
+            lines.append(f"  {k:<12} {str(default):<10} {text}")
+        return "\n".join(lines)
+
+    def parameters(self, overrides=None):
+        """The parameter namespace: defaults updated by {name: value or string}."""
+        values = {k: d for k, (d, _) in self.defaults.items()}
+        for k, v in (overrides or {}).items():
+            if k not in values:
+                raise ParameterError(f"case '{self.name}' has no parameter {k!r}; valid names: "
+                                     f"{', '.join(self.defaults)}")
+            values[k] = _parse(k, v, values[k])
+        return SimpleNamespace(**values)
+
+    def check_degree(self, degree):
+        if degree not in self.degrees:
+            raise ParameterError(f"case '{self.name}' supports degree {self.degrees}, not {degree}")
+
+    def problem(self, level, degree, p, alpha0_limits=None):
+        if level < 0:
+            raise ParameterError(f"level must be >= 0, got {level}")
+        self.check_degree(degree)
+        spec = self.module.build(level, degree, p)
+        return Problem(spec["fields"], spec["energy"], spec.get("constraints", ()),
+                       alpha0_limits=alpha0_limits)
+
+    def alpha0_limits(self, degree, p, level=1):
+        """Stability limits of alpha0 computed on a coarse level of this case."""
+        return self.problem(level, degree, p).alpha0_limits
+
+    def errors(self, problem, result, p):
+        fn = getattr(self.module, "errors", None)
+        return fn(problem, result, p) if fn else {}
+
+    @property
+    def rate(self):
+        return getattr(self.module, "RATE", {})
+
+
+def _parse(name, text, default):
+    if not isinstance(text, str):
+        return text
+    try:
+        if isinstance(default, bool):
+            if text.lower() not in ("true", "false", "1", "0"):
+                raise ValueError
+            return text.lower() in ("true", "1")
+        if isinstance(default, int):
+            return int(text)
+        if isinstance(default, float) or default == "auto":
+            if text == "auto" and default == "auto":
+                return text
+            value = float(text)
+            if not math.isfinite(value):
+                raise ValueError
+            return value
+        return text
+    except ValueError:
+        kind = "an integer" if isinstance(default, int) and not isinstance(default, bool) else \
+            "a finite number" + (" or 'auto'" if default == "auto" else "")
+        raise ParameterError(f"parameter {name}={text!r}: expected {kind}")
+
+
+def parse_assignments(items):
+    """['a=1', 'b=x'] -> {'a': '1', 'b': 'x'}."""
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise ParameterError(f"--set expects name=value, got {item!r}")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out

@@ -1,0 +1,68 @@
+"""Results on disk: result.json / study.json (a public contract: keys are only added)
+and VTK files for ParaView."""
+import json
+import os
+
+from skfem.io.meshio import to_meshio
+import numpy as np
+from skfem import ElementVector
+
+
+def write_json(path, data):
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    with open(path, "w") as fh:
+        json.dump(data, fh, indent=2, default=_plain)
+    return path
+
+
+def _plain(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(type(o))
+
+
+def vertex_values(field, u):
+    """Values of a Lagrange field at the mesh vertices (the first nodal dofs)."""
+    nv = field.mesh.nvertices
+    if isinstance(field.element, ElementVector):
+        d = field.mesh.dim()
+        return np.asarray(u[field.basis.nodal_dofs[:, :nv]]).T  # (nv, d)
+    return np.asarray(u[field.basis.nodal_dofs[0, :nv]])
+
+
+def vertex_multiplier(problem, values, mesh):
+    """Average the discrete multiplier of every constraint on `mesh` to its vertices."""
+    out = {}
+    for c in problem.constraints:
+        if c.on.mesh is not mesh:
+            continue
+        v = values[c.name]
+        per_element = (v["multiplier"] * v["W"]).sum(1) / np.maximum(v["W"].sum(1), 1e-300)
+        verts = mesh.t if c.on.kind == "cells" else mesh.facets[:, c.on.facets]
+        acc = np.zeros(mesh.nvertices)
+        cnt = np.zeros(mesh.nvertices)
+        np.add.at(acc, verts, np.broadcast_to(per_element, verts.shape))
+        np.add.at(cnt, verts, 1.0)
+        out[f"{c.name}_pressure"] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0)
+    return out
+
+
+def write_vtu(path_prefix, problem, x):
+    """One .vtu per mesh: point data named after the fields plus the contact pressure."""
+    parts = problem.split(x)
+    values = problem.constraint_values(x)
+    meshes = []
+    for f in problem.fields:
+        if all(f.mesh is not m for m in meshes):
+            meshes.append(f.mesh)
+    paths = []
+    for i, mesh in enumerate(meshes):
+        data = {f.name: vertex_values(f, parts[f.name]) for f in problem.fields
+                if f.mesh is mesh and f.is_lagrange}
+        data.update(vertex_multiplier(problem, values, mesh))
+        path = f"{path_prefix}.vtu" if len(meshes) == 1 else f"{path_prefix}_{i}.vtu"
+        to_meshio(mesh, point_data=data).write(path)
+        paths.append(path)
+    return paths

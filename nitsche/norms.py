@@ -1,0 +1,28 @@
+"""Norms for errors and refinement studies."""
+import numpy as np
+from skfem import CellBasis
+
+
+def energy_norm(problem, v, x=None):
+    """|v|_E = sqrt(v^T K v), K the Hessian of the energy J (not of J_h)."""
+    return float(np.sqrt(max(v @ (problem.energy_matrix(x) @ v), 0.0)))
+
+
+def exact_errors(field, u, value, grad, extra_order=4):
+    """L2 and H1-seminorm errors of the dofs u of a scalar field against an exact
+    solution given by numpy functions value(x) and grad(x) (shape (dim, ...))."""
+    hb = CellBasis(field.mesh, field.element, intorder=2 * field.element.maxdeg + extra_order)
+    uh = hb.interpolate(u)
+    x = hb.global_coordinates().value
+    e0 = uh.value - value(x)
+    e1 = uh.grad - grad(x)
+    return {"L2": float(np.sqrt(np.sum(e0 ** 2 * hb.dx))),
+            "H1": float(np.sqrt(np.sum(np.sum(e1 ** 2, axis=0) * hb.dx)))}
+
+
+def rates(values):
+    """log2 of successive ratios (h halves per level); None where undefined."""
+    out = [None]
+    for a, b in zip(values[:-1], values[1:]):
+        out.append(float(np.log2(a / b)) if a and b and a > 0 and b > 0 else None)
+    return out
