@@ -153,7 +153,8 @@ class Term:
         """The compiled chunk kernel: 'energy', 'full' (energy, gradient, Hessian) or 'values'."""
         if kind in self._kernels:
             return self._kernels[kind]
-        key = (kind, fingerprint(self.pointwise), tuple(self.layout), self.chunk, self.nq,
+        key = (kind, fingerprint(self.pointwise), tuple(self.layout), self.chunk,
+               tuple(T.shape[1:] for T in self.T),
                self.dim, self.has_normal)
         if key not in _COMPILED:
             fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq)

@@ -47,7 +47,7 @@ def _gbasis_with_hessian(self, mapping, X, i, tind=None):
     if X.ndim == 2:
         ref = np.broadcast_to(ref, ref.shape[:2] + (invDF.shape[2], ref.shape[-1]))
     hess = np.einsum('iaeq,ijeq,jbeq->abeq', invDF, ref, invDF)
-    return (DiscreteField(value=field.value, grad=field.grad, hess=hess),)
+    return (DiscreteField(value=np.asarray(field), grad=field.grad, hess=hess),)
 
 
 _CACHE = {}

@@ -22,6 +22,11 @@ def cell_diameters(mesh):
                    for i in range(nv) for j in range(i + 1, nv)], axis=0)
 
 
+def _part(df, order):
+    """Order `order` of a scikit-fem DiscreteField as an array."""
+    return np.asarray(df) if order == 0 else np.asarray(getattr(df, ORDERS[order]))
+
+
 class Measure:
     """Integration over the elements of a scikit-fem basis `self.basis`."""
 
@@ -53,7 +58,7 @@ class Measure:
 
     @property
     def points(self):
-        return np.asarray(self.basis.global_coordinates().value)
+        return np.asarray(self.basis.global_coordinates())
 
     @property
     def normals(self):
@@ -71,7 +76,7 @@ class Measure:
             df = b.basis[k][0]
             parts = []
             for o in orders:
-                a = np.asarray(getattr(df, ORDERS[o]))
+                a = _part(df, o)
                 a = np.broadcast_to(a, a.shape[:-2] + (b.nelems, a.shape[-1]))
                 parts.append(a.reshape(-1, b.nelems, a.shape[-1]))
             cols.append(np.concatenate(parts, axis=0))
@@ -82,7 +87,7 @@ class Measure:
         """Shape of each requested order's array at one point."""
         b = self.basis_for(field)
         df = b.basis[0][0]
-        return [np.asarray(getattr(df, ORDERS[o])).shape[:-2] for o in orders]
+        return [_part(df, o).shape[:-2] for o in orders]
 
 
 class Cells(Measure):
@@ -119,7 +124,7 @@ class Facets(Measure):
 
     @property
     def normals(self):
-        return np.asarray(self.basis.normals.value)
+        return np.asarray(self.basis.normals)
 
 
 def cells(field, intorder=None):

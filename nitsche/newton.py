@@ -68,9 +68,15 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     x = problem.initial(x0)
     free = problem.free
     lin = make_solver(solver, free.size, problem.dim)
+    E0 = problem.energy(x)
+    if not np.isfinite(E0):
+        raise ValueError(f"the energy J_h is not finite at the initial guess (J_h = {E0}); "
+                         "check the densities (log, sqrt, division) and the initial guess x0")
     x_ref = problem.initial(np.zeros(problem.ndofs))
     x_ref[free] = 0.0
-    ref = np.linalg.norm(problem.gradient(x_ref)[free]) or 1.0
+    ref = np.linalg.norm(problem.gradient(x_ref)[free])
+    if not (np.isfinite(ref) and ref > 0):  # e.g. a density undefined at zero: scale by x0
+        ref = np.linalg.norm(problem.gradient(x)[free]) or 1.0
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
     for it in range(maxiter + 1):
         t = time.perf_counter()

@@ -13,8 +13,8 @@ def exact_errors(field, u, value, grad, extra_order=4):
     solution given by numpy functions value(x) and grad(x) (shape (dim, ...))."""
     hb = CellBasis(field.mesh, field.element, intorder=2 * field.element.maxdeg + extra_order)
     uh = hb.interpolate(u)
-    x = hb.global_coordinates().value
-    e0 = uh.value - value(x)
+    x = np.asarray(hb.global_coordinates())
+    e0 = np.asarray(uh) - value(x)
     e1 = uh.grad - grad(x)
     return {"L2": float(np.sqrt(np.sum(e0 ** 2 * hb.dx))),
             "H1": float(np.sqrt(np.sum(np.sum(e1 ** 2, axis=0) * hb.dx)))}

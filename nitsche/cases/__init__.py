@@ -3,7 +3,7 @@ import importlib
 
 from ..case import Case
 
-MODULES = ["obstacle"]
+MODULES = ["dirichlet", "signorini", "obstacle"]
 
 
 def all_cases():

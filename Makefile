@@ -1,0 +1,45 @@
+# Set-up from scratch on a fresh machine: `make demo` (a paper case with figures), `make test`.
+PYTHON ?= python3
+VENV   ?= .venv
+PY      = $(VENV)/bin/python
+PIP     = $(VENV)/bin/pip
+OUT    ?= out
+
+.PHONY: install demo test test-full bench clean system-deps
+
+$(VENV)/.installed: pyproject.toml
+	$(MAKE) system-deps
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+	$(PIP) install -q -e ".[test]"
+	@# CHOLMOD (scikit-sparse < 0.5 builds against Debian's SuiteSparse 5); SciPy's SuperLU otherwise
+	-$(PIP) install -q "scikit-sparse<0.5" || echo "scikit-sparse not installed: using SciPy's SuperLU"
+	$(PY) -c "import nitsche.linalg as l; print('linear solver:', 'CHOLMOD' if l.HAVE_CHOLMOD else 'SciPy SuperLU')"
+	touch $@
+
+install: $(VENV)/.installed
+
+# Debian's SuiteSparse headers for CHOLMOD, where the machine allows (root or sudo)
+system-deps:
+	@if [ -f /usr/include/suitesparse/cholmod.h ]; then exit 0; fi; \
+	if command -v apt-get >/dev/null 2>&1; then \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO="sudo -n"; \
+	  ($$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libsuitesparse-dev >/dev/null) \
+	  || echo "could not install libsuitesparse-dev: falling back to SciPy's solver"; \
+	fi
+
+demo: install
+	$(VENV)/bin/nitsche study obstacle --degree 1 --levels 6 --out $(OUT)/obstacle-study
+	$(VENV)/bin/nitsche run obstacle --degree 2 --level 4 --out $(OUT)/obstacle
+
+test: install
+	$(VENV)/bin/pytest -q
+
+test-full: install
+	$(VENV)/bin/pytest -q --full
+
+bench: install
+	$(PY) benchmarks/obstacle_assembly.py
+
+clean:
+	rm -rf $(VENV) $(OUT) *.egg-info

@@ -1,0 +1,134 @@
+"""The engine: exact derivatives of J_h, Newton's report, clear errors."""
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementTriMorley
+
+import nitsche as ni
+from nitsche.ops import dot, grad, lap
+
+
+def problem(kind, where, degree, alpha0=0.05):
+    mesh = MeshTri.init_symmetric().refined(2)
+    u = ni.Field("u", mesh, ElementTriP1() if degree == 1 else ElementTriP2(),
+                 fixed=None if where == "facets" else "boundary")
+    energy = lambda u, x: 0.5 * dot(grad(u), grad(u)) - (1 + x[0]) * u
+    if where == "facets":
+        on = ni.facets(u)
+        lam = lambda u, n: dot(grad(u), n)
+        scaling = ni.Scaling(alpha0, 1)
+    else:
+        on = ni.cells(u, intorder=4)
+        lam = lambda u: -lap(u) - 1.0
+        scaling = ni.Scaling(alpha0 / 10, 2)
+    gap = lambda u, x: u - 0.05 * jnp.sin(3 * x[0]) + 0.02
+    c = {"equality": lambda: ni.Equality(gap, lam, scaling, on),
+         "inequality": lambda: ni.Inequality(gap, lam, scaling, on),
+         "penalty": lambda: ni.Penalty(gap, scaling, on)}[kind]()
+    return ni.Problem([u], energy, [c], alpha0_limits={c.name: 1e9})
+
+
+@pytest.mark.parametrize("kind", ["equality", "inequality", "penalty"])
+@pytest.mark.parametrize("where", ["cells", "facets"])
+@pytest.mark.parametrize("degree", [1, 2])
+def test_gradient_and_hessian_match_finite_differences(kind, where, degree):
+    p = problem(kind, where, degree)
+    rng = np.random.default_rng(0)
+    x = p.initial(0.1 * rng.standard_normal(p.ndofs))
+    v = np.zeros(p.ndofs)
+    v[p.free] = rng.standard_normal(p.free.size)
+    g = p.gradient(x)
+    H = p.hessian(x)
+    eps = 1e-6
+    fd_g = (p.energy(x + eps * v) - p.energy(x - eps * v)) / (2 * eps)
+    assert fd_g == pytest.approx(g @ v, rel=1e-6, abs=1e-9)
+    # the generalized Hessian: exact where the active set does not change in (x - eps v, x + eps v)
+    fd_H = (p.gradient(x + eps * v) - p.gradient(x - eps * v)) / (2 * eps)
+    assert np.allclose(fd_H, H @ v, rtol=1e-5, atol=1e-6 * np.abs(H @ v).max())
+    assert abs(H - H.T).max() <= 1e-12 * abs(H).max()
+    if kind == "inequality":  # the test exercises both active and inactive points
+        vals = p.constraint_values(x)["inequality" if False else "contact"]
+        active = vals["lam"] - vals["g"] / vals["alpha"] > 0
+        assert active.any() and (~active).any()
+
+
+def test_newton_converges_and_reports():
+    p = problem("inequality", "cells", 2)
+    r = p.minimize()
+    assert r.converged and r.iterations >= 1
+    assert r.residuals[-1] <= 1e-10
+    assert r.active_count > 0 and r.max_violation >= 0
+    assert "converged" in r.report()
+
+
+def test_iteration_limit_is_reported_not_silent():
+    p = problem("inequality", "cells", 2)
+    r = p.minimize(maxiter=1)
+    assert not r.converged
+    assert "iteration limit" in r.reason
+    with pytest.raises(ni.NotConverged):
+        r.check()
+
+
+def test_bad_alpha0_is_a_clear_error():
+    for bad in (0.0, -1.0, float("nan"), "big"):
+        with pytest.raises(ValueError, match="alpha0"):
+            ni.Scaling(bad, 1)
+
+
+def test_unknown_field_name_is_a_clear_error():
+    mesh = MeshTri().refined(2)
+    u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+    with pytest.raises(ValueError, match=r"unknown argument.*\['w'\].*fields \['u'\]"):
+        ni.Problem([u], lambda w: dot(grad(w), grad(w)))
+
+
+def test_missing_derivative_is_a_clear_error():
+    mesh = MeshTri().refined(2)
+    u = ni.Field("u", mesh, ElementTriMorley(), fixed="boundary")
+    with pytest.raises(ni.DerivativeError, match="third derivatives"):
+        ni.Problem([u], lambda u: jnp.sum(u.grad3 ** 2))
+
+
+def test_normal_on_cells_is_a_clear_error():
+    mesh = MeshTri().refined(2)
+    u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+    with pytest.raises(ValueError, match="normal"):
+        ni.Problem([u], lambda u, n: dot(grad(u), n))
+
+
+def test_non_finite_initial_energy_is_a_clear_error():
+    mesh = MeshTri().refined(2)
+    u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+    p = ni.Problem([u], lambda u: jnp.log(u.value - 1.0) + dot(grad(u), grad(u)))
+    with pytest.raises(ValueError, match="not finite"):
+        p.minimize()
+
+
+def test_stability_limit_of_p2_cell_laplacian_and_warning():
+    """methods.md: the P2 cell-Laplacian limit is about 0.0105 with h = diameter."""
+    from nitsche.case import Case
+    import nitsche.cases.obstacle as obstacle
+    case = Case(obstacle)
+    limits = case.alpha0_limits(2, case.parameters())
+    assert 0.008 < limits["contact"] < 0.013
+    with pytest.warns(ni.StabilityWarning, match="exceeds the stability limit"):
+        case.problem(0, 2, case.parameters({"alpha0": "0.1"}), limits)
+
+
+def test_stability_limit_of_boundary_flux():
+    """methods.md: Dirichlet flux term, P1 limit 0.35 - 0.5, P2 0.095 - 0.137."""
+    from nitsche.case import Case
+    import nitsche.cases.dirichlet as dirichlet
+    case = Case(dirichlet)
+    assert 0.3 < case.alpha0_limits(1, case.parameters())["dirichlet"] < 0.55
+    assert 0.08 < case.alpha0_limits(2, case.parameters())["dirichlet"] < 0.14
+
+
+def test_p2_hessian_is_exact():
+    """Element-wise second derivatives of P2 reproduce a quadratic's Hessian."""
+    mesh = MeshTri().refined(3)
+    u = ni.Field("u", mesh, ElementTriP2())
+    x = u.interpolate(lambda x: 3 * x[0] ** 2 - 2 * x[0] * x[1] + 5 * x[1] ** 2 + x[0])
+    h = u.basis.interpolate(x).hess
+    assert np.allclose(h[0, 0], 6) and np.allclose(h[0, 1], -2) and np.allclose(h[1, 1], 10)
