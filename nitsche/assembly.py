@@ -21,6 +21,8 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 
+from jax.extend.core import Literal
+
 from .jets import Jet
 
 CHUNK_POINTS = 2 ** 15  # quadrature points per kernel call
@@ -84,10 +86,16 @@ class Term:
         self.fields = [by_name[name] for name, _, _ in self.layout]
         self.chunk = max(1, CHUNK_POINTS // self.nq)
         npad = -(-self.nel // self.chunk) * self.chunk
-        self.T, self.dofs = [], []
+        self.T, self.dofs, self.kept = [], [], []
         for (name, parts, _) in self.layout:
             T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
-            self.T.append(_pad(T, npad))
+            # jet components that vanish identically (e.g. P1 Hessians) are left out of the
+            # differentiation and enter the density as exact zeros
+            kept = np.flatnonzero(np.abs(T).max(axis=(0, 1, 3)) > 0)
+            if kept.size == 0:
+                kept = np.arange(1)
+            self.T.append(_pad(np.ascontiguousarray(T[:, :, kept]), npad))
+            self.kept.append(tuple(kept.tolist()))
             self.dofs.append(dofs)
         self.field_dofs = [d + offsets[f.name] for d, f in zip(self.dofs, self.fields)]
         self.global_dofs = np.concatenate(self.field_dofs, axis=1)
@@ -135,25 +143,38 @@ class Term:
 
     @property
     def sizes(self):
-        return [(sum(p[3] for p in parts), T.shape[-1]) for (_, parts, _), T in zip(self.layout, self.T)]
+        """(jet components kept, local dofs) of each field."""
+        return [T.shape[2:] for T in self.T]
 
     def _point_fn(self):
-        layout, pointwise = self.layout, self.pointwise
+        layout, pointwise, kept = self.layout, self.pointwise, self.kept
         offsets = np.cumsum([0] + [m for m, _ in self.sizes])
 
         def f(z, x, n, h):
             args = {"x": x, "n": n, "h": h}
-            for (name, parts, provided), off in zip(layout, offsets):
-                args[name] = Jet(name, {o: z[off + s: off + s + size].reshape(shape)
+            for (name, parts, provided), off, kf in zip(layout, offsets, kept):
+                full = jnp.zeros(sum(p[3] for p in parts)).at[np.array(kf)].set(z[off:off + len(kf)])
+                args[name] = Jet(name, {o: full[s: s + size].reshape(shape)
                                         for o, shape, s, size in parts}, provided)
             return pointwise(args)
         return f
+
+    @property
+    def is_quadratic(self):
+        """True when d2w/dz2 does not depend on z (found from the computation graph):
+        then J restricted to this term is a quadratic form, assembled once."""
+        if not hasattr(self, "_quadratic"):
+            m = sum(mf for mf, _ in self.sizes)
+            vec = jnp.zeros(self.dim)
+            jaxpr = jax.make_jaxpr(jax.hessian(self._point_fn()))(jnp.zeros(m), vec, vec, 0.1)
+            self._quadratic = not _depends_on_first_input(jaxpr.jaxpr)
+        return self._quadratic
 
     def kernel(self, kind):
         """The compiled chunk kernel: 'energy', 'full' (energy, gradient, Hessian) or 'values'."""
         if kind in self._kernels:
             return self._kernels[kind]
-        key = (kind, fingerprint(self.pointwise), tuple(self.layout), self.chunk,
+        key = (kind, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
                tuple(T.shape[1:] for T in self.T),
                self.dim, self.has_normal)
         if key not in _COMPILED:
@@ -178,6 +199,15 @@ class Term:
             outs.append(kern(*[T[sl] for T in self.T], *[u[sl] for u in us],
                              self.W[sl], self.x[sl], self.n[sl], self.h[sl]))
         return [np.concatenate([np.asarray(o[i]) for o in outs])[:self.nel] for i in range(len(outs[0]))]
+
+
+def _depends_on_first_input(jaxpr):
+    """Whether any output of a jaxpr depends on its first input (conservatively)."""
+    dependent = {jaxpr.invars[0]}
+    for eqn in jaxpr.eqns:
+        if any(not isinstance(v, Literal) and v in dependent for v in eqn.invars):
+            dependent.update(eqn.outvars)
+    return any(not isinstance(v, Literal) and v in dependent for v in jaxpr.outvars)
 
 
 def _build(kind, point_fn, sizes, chunk, nq):
@@ -241,20 +271,46 @@ class Assembler:
         self.nnz = unique.size
         bounds = np.cumsum([0] + [r.size for r in rows])
         self.scatter = [inverse[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+        self._quadratics = {}
+
+    def _assemble(self, t, idx, x):
+        e, g, H = t.run("full", x)
+        return (float(e.sum()), np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs),
+                np.bincount(idx, weights=H.ravel(), minlength=self.nnz))
+
+    def _quadratic(self, t, idx):
+        """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""
+        if id(t) not in self._quadratics:
+            E0, g0, data = self._assemble(t, idx, np.zeros(self.ndofs))
+            self._quadratics[id(t)] = (E0, g0, data, self.matrix(data))
+        return self._quadratics[id(t)]
 
     def energy(self, x, terms=None):
-        return float(sum(t.run("energy", x)[0].sum() for t in (terms or self.terms)))
+        E = 0.0
+        for t, idx in zip(self.terms, self.scatter):
+            if terms is not None and t not in terms:
+                continue
+            if t.is_quadratic:
+                E0, g0, _, K = self._quadratic(t, idx)
+                E += E0 + g0 @ x + 0.5 * x @ (K @ x)
+            else:
+                E += float(t.run("energy", x)[0].sum())
+        return E
 
     def evaluate(self, x, terms=None):
-        """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian."""
+        """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian.
+        Quadratic terms are assembled once and then applied as matrices."""
         E, grad, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
         for t, idx in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
                 continue
-            e, g, H = t.run("full", x)
-            E += float(e.sum())
-            grad += np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
-            data += np.bincount(idx, weights=H.ravel(), minlength=self.nnz)
+            if t.is_quadratic:
+                E0, g0, d, K = self._quadratic(t, idx)
+                Kx = K @ x
+                E, grad, data = E + E0 + g0 @ x + 0.5 * x @ Kx, grad + g0 + Kx, data + d
+            else:
+                e, g, d = self._assemble(t, idx, x)
+                E, grad, data = E + e, grad + g, data + d
         return E, grad, data
 
     def matrix(self, data):
