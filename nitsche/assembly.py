@@ -91,7 +91,7 @@ class Term:
             T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
             # jet components that vanish identically (e.g. P1 Hessians) are left out of the
             # differentiation and enter the density as exact zeros
-            kept = np.flatnonzero(np.abs(T).max(axis=(0, 1, 3)) > 0)
+            kept = np.array([c for c in range(T.shape[2]) if T[:, :, c].any()], dtype=int)
             if kept.size == 0:
                 kept = np.arange(1)
             self.T.append(_pad(np.ascontiguousarray(T[:, :, kept]), npad))
@@ -262,15 +262,22 @@ class Assembler:
 
     def __init__(self, terms, ndofs):
         self.terms, self.ndofs = terms, ndofs
-        rows = [np.repeat(t.global_dofs, t.global_dofs.shape[1], axis=1).ravel() for t in terms]
-        cols = [np.tile(t.global_dofs, (1, t.global_dofs.shape[1])).ravel() for t in terms]
-        keys = np.concatenate(rows) * np.int64(ndofs) + np.concatenate(cols)
-        unique, inverse = np.unique(keys, return_inverse=True)
-        self.indices = (unique % ndofs).astype(np.int32)
-        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(unique // ndofs, minlength=ndofs))])
-        self.nnz = unique.size
-        bounds = np.cumsum([0] + [r.size for r in rows])
-        self.scatter = [inverse[a:b] for a, b in zip(bounds[:-1], bounds[1:])]
+        distinct = []  # terms on the same elements share their local-to-global map
+        for t in terms:
+            if not any(d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs)
+                       for d in distinct):
+                distinct.append(t.global_dofs)
+        keys = [(np.repeat(d, d.shape[1], axis=1) * np.int64(ndofs)
+                 + np.tile(d, (1, d.shape[1]))).ravel() for d in distinct]
+        rows, cols = np.divmod(np.concatenate(keys), ndofs)
+        pattern = sp.coo_matrix((np.ones(rows.size, np.int8), (rows, cols)), shape=(ndofs, ndofs)).tocsr()
+        pattern.sum_duplicates()
+        self.indices, self.indptr = pattern.indices, pattern.indptr
+        self.nnz = pattern.nnz
+        sorted_keys = np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs + self.indices
+        positions = [np.searchsorted(sorted_keys, k) for k in keys]
+        self.scatter = [next(p for d, p in zip(distinct, positions) if d.shape == t.global_dofs.shape
+                             and np.array_equal(d, t.global_dofs)) for t in terms]
         self._quadratics = {}
 
     def _assemble(self, t, idx, x):

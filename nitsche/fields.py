@@ -4,6 +4,7 @@ from skfem import Basis, ElementVector
 from skfem.element import ElementH1
 
 from .elements import with_hessian, provided_orders
+from .locate import probes
 
 
 class Field:
@@ -23,9 +24,10 @@ class Field:
         if name in ("x", "n", "h"):
             raise ValueError(f"field name {name!r} is reserved for the point, normal and mesh size")
         self.name, self.mesh = name, mesh
-        self.element = with_hessian(element)
-        self.orders = provided_orders(self.element)
-        self.basis = Basis(mesh, self.element, intorder=intorder)
+        self.element = element
+        self.element_with_hessian = with_hessian(element)  # used where a density asks for hess
+        self.orders = provided_orders(self.element_with_hessian)
+        self.basis = Basis(mesh, element, intorder=intorder)
         self.fixed_dofs = self._fixed_dofs(fixed)
         self.fixed_values = self._fixed_values(value)
 
@@ -76,7 +78,7 @@ class Field:
         if not (self.is_lagrange and coarse.is_lagrange):
             raise NotImplementedError(
                 f"field '{self.name}': prolongation is implemented for Lagrange elements only")
-        values = coarse.basis.probes(self.basis.doflocs) @ u
+        values = probes(coarse.basis, self.basis.doflocs) @ u
         if isinstance(self.element, ElementVector):  # rows component-major, dofs interleaved
             j = np.arange(self.ndofs)
             values = values.reshape(self.mesh.dim(), -1)[j % self.mesh.dim(), j]

@@ -36,13 +36,14 @@ class Measure:
         self.mesh, self._make_basis, self._bases = mesh, make_basis, {}
         self.basis = None
 
-    def basis_for(self, field):
+    def basis_for(self, field, hessian=False):
+        """The field's basis at this measure's points (with element-wise Hessians if asked)."""
         if field.mesh is not self.mesh:
             raise ValueError(f"field '{field.name}' lives on another mesh than this {self.kind} "
                              "measure; integrate it on its own mesh or through an interface")
-        key = id(field)
+        key = (id(field), hessian)
         if key not in self._bases:
-            self._bases[key] = self._make_basis(field)
+            self._bases[key] = self._make_basis(field.element_with_hessian if hessian else field.element)
         return self._bases[key]
 
     def attach(self, field):
@@ -70,7 +71,7 @@ class Measure:
 
     def tabulation(self, field, orders):
         """T[e, q, c, k] (components c of the requested orders) and local dofs[e, k]."""
-        b = self.basis_for(field)
+        b = self.basis_for(field, hessian=2 in orders)
         cols = []
         for k in range(b.Nbfun):
             df = b.basis[k][0]
@@ -85,16 +86,15 @@ class Measure:
 
     def shapes(self, field, orders):
         """Shape of each requested order's array at one point."""
-        b = self.basis_for(field)
-        df = b.basis[0][0]
-        return [_part(df, o).shape[:-2] for o in orders]
+        value = _part(self.basis_for(field).basis[0][0], 0).shape[:-2]
+        return [value + (self.mesh.dim(),) * o for o in orders]
 
 
 class Cells(Measure):
     kind = "cells"
 
     def __init__(self, mesh, intorder=None, quadrature=None):
-        super().__init__(mesh, lambda f: CellBasis(mesh, f.element, intorder=intorder,
+        super().__init__(mesh, lambda e: CellBasis(mesh, e, intorder=intorder,
                                                     quadrature=quadrature))
         self.intorder = intorder
 
@@ -104,7 +104,7 @@ class Cells(Measure):
 
     def attach(self, field):
         if self.basis is None and self.intorder is None and field.mesh is self.mesh:
-            self._bases[id(field)] = field.basis  # reuse the field's own quadrature
+            self._bases[(id(field), False)] = field.basis  # reuse the field's own quadrature
         return super().attach(field)
 
 
@@ -115,7 +115,7 @@ class Facets(Measure):
         self.facets = np.asarray(facets, dtype=np.int64)
         if self.facets.size == 0:
             raise ValueError("the facet selection is empty: check the boundary predicate or name")
-        super().__init__(mesh, lambda f: FacetBasis(mesh, f.element, facets=self.facets,
+        super().__init__(mesh, lambda e: FacetBasis(mesh, e, facets=self.facets,
                                                      intorder=intorder))
 
     @property

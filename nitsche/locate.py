@@ -1,0 +1,58 @@
+"""Point location and evaluation of finite element functions at arbitrary points.
+
+`locate` finds the cell of every point with a k-d tree of cell centroids and a
+test in reference coordinates (linear in memory, unlike a dense search);
+`probes` is the sparse matrix P with (P u)[i] = u_h(x_i) (component-major rows
+for vector elements), as scikit-fem's CellBasis.probes but for many points.
+"""
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.spatial import cKDTree
+
+SIMPLICES = ("MeshTri1", "MeshTet1", "MeshLine1")
+
+
+def _inside(mesh, X, tol=1e-9):
+    if type(mesh).__name__ in SIMPLICES:
+        return np.all(X >= -tol, axis=0) & (X.sum(axis=0) <= 1 + tol)
+    return np.all((X >= -tol) & (X <= 1 + tol), axis=0)
+
+
+def locate(basis, x):
+    """Cell index of every point x (shape (dim, n)); ValueError for points outside the mesh."""
+    mesh, mapping = basis.mesh, basis.mapping
+    corners = mesh.p[:, mesh.t]  # (dim, nverts, ncells)
+    lo, hi = corners.min(axis=1), corners.max(axis=1)
+    slack = 1e-9 * (hi - lo).max()
+    tree = cKDTree(corners.mean(axis=1).T)
+    cells = -np.ones(x.shape[1], dtype=np.int64)
+    todo = np.arange(x.shape[1])
+    for k in (4, 16, 64, min(256, mesh.t.shape[1])):
+        k = min(k, mesh.t.shape[1])
+        _, cand = tree.query(x[:, todo].T, k=k)
+        cand = cand.reshape(todo.size, k)
+        for j in range(k):
+            c, pts = cand[:, j], x[:, todo]
+            near = np.all((pts >= lo[:, c] - slack) & (pts <= hi[:, c] + slack), axis=0)
+            near &= cells[todo] < 0
+            if not near.any():
+                continue
+            X = mapping.invF(pts[:, near, None], tind=c[near])[:, :, 0]
+            hit = np.flatnonzero(near)[_inside(mesh, X)]
+            cells[todo[hit]] = c[hit]
+        todo = todo[cells[todo] < 0]
+        if todo.size == 0:
+            return cells
+    raise ValueError(f"{todo.size} points lie outside the mesh, e.g. {x[:, todo[0]]}")
+
+
+def probes(basis, x):
+    """Sparse matrix evaluating a function of `basis` at the points x (shape (dim, n))."""
+    cells = locate(basis, x)
+    X = basis.mapping.invF(x[:, :, None], tind=cells)
+    phis = np.array([np.asarray(basis.elem.gbasis(basis.mapping, X, k, tind=cells)[0])
+                     for k in range(basis.Nbfun)])  # (Nbfun, *components, n, 1)
+    comp = int(np.prod(phis.shape[1:-2], dtype=int))
+    rows = np.tile(np.arange(comp * x.shape[1]), basis.Nbfun)
+    cols = basis.element_dofs[:, np.tile(cells, comp)].ravel()
+    return coo_matrix((phis.ravel(), (rows, cols)), shape=(comp * x.shape[1], basis.N)).tocsr()
