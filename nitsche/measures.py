@@ -72,17 +72,15 @@ class Measure:
     def tabulation(self, field, orders):
         """T[e, q, c, k] (components c of the requested orders) and local dofs[e, k]."""
         b = self.basis_for(field, hessian=2 in orders)
-        cols = []
+        sizes = [int(np.prod(s, dtype=int)) for s in self.shapes(field, orders)]
+        starts = np.cumsum([0] + sizes)
+        T = np.empty((b.nelems, self.weights.shape[1], starts[-1], b.Nbfun))
         for k in range(b.Nbfun):
             df = b.basis[k][0]
-            parts = []
-            for o in orders:
-                a = _part(df, o)
-                a = np.broadcast_to(a, a.shape[:-2] + (b.nelems, a.shape[-1]))
-                parts.append(a.reshape(-1, b.nelems, a.shape[-1]))
-            cols.append(np.concatenate(parts, axis=0))
-        T = np.stack(cols, axis=-1)  # (c, e, q, k)
-        return np.ascontiguousarray(T.transpose(1, 2, 0, 3)), np.ascontiguousarray(b.element_dofs.T)
+            for o, a, c in zip(orders, starts[:-1], starts[1:]):
+                part = _part(df, o).reshape(c - a, -1, T.shape[1])  # (components, e, q)
+                T[:, :, a:c, k] = np.moveaxis(part, 0, -1)
+        return T, np.ascontiguousarray(b.element_dofs.T)
 
     def shapes(self, field, orders):
         """Shape of each requested order's array at one point."""
