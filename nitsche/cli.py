@@ -30,6 +30,8 @@ def parser():
     _common(run)
     run.add_argument("--level", type=int, default=2, help="uniform refinements of the base mesh")
     run.add_argument("--verbose", action="store_true", help="print every Newton iteration")
+    run.add_argument("--no-nested", dest="nested", action="store_false",
+                     help="start Newton from zero instead of solving the coarser levels first")
     st = sub.add_parser("study", help="uniform refinement study with nested iteration", add_help=False)
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")
@@ -67,16 +69,21 @@ def main(argv=None):
 def _run(case, args, p, out, options):
     from .io import write_json, write_vtu
     from .plot import plot_solution
+    from .study import solve_nested
     t0 = time.perf_counter()
     limits = case.alpha0_limits(args.degree, p)
-    problem = case.problem(args.level, args.degree, p, limits)
     if args.verbose:
         options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
                                                        f"J_h {E:.12g}", file=sys.stderr)
-    result = problem.minimize(**options)
+    if args.nested:
+        problem, result, its = solve_nested(case, args.level, args.degree, p, limits, options)
+    else:
+        problem = case.problem(args.level, args.degree, p, limits)
+        result = problem.minimize(**options)
+        its = [result.iterations]
     seconds = time.perf_counter() - t0
     print(f"{case.name}: level {args.level}, degree {args.degree}, {problem.ndofs} dofs "
-          f"({problem.free.size} unknowns)")
+          f"({problem.free.size} unknowns); Newton iterations per level {its}")
     print(result.report())
     errors = case.errors(problem, result, p)
     for k, v in errors.items():
@@ -84,6 +91,7 @@ def _run(case, args, p, out, options):
     data = dict(case=case.name, level=args.level, degree=args.degree, dofs=int(problem.ndofs),
                 unknowns=int(problem.free.size), converged=result.converged, reason=result.reason,
                 newton_iterations=result.iterations, residuals=result.residuals,
+                nested_iterations=its,
                 energy=result.energy, active_count=result.active_count,
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
                 seconds=seconds, solve_seconds=result.seconds, timings=result.timings,

@@ -63,6 +63,9 @@ def write_vtu(path_prefix, problem, x):
                 if f.mesh is mesh and f.is_lagrange}
         data.update(vertex_multiplier(problem, values, mesh))
         path = f"{path_prefix}.vtu" if len(meshes) == 1 else f"{path_prefix}_{i}.vtu"
-        to_meshio(mesh, point_data=data).write(path)
+        out = to_meshio(mesh, point_data=data)
+        if out.points.shape[1] == 2:  # VTK points are 3D
+            out.points = np.c_[out.points, np.zeros(len(out.points))]
+        out.write(path)
         paths.append(path)
     return paths

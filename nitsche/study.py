@@ -27,6 +27,21 @@ def mesh_size(problem):
     return float(cell_diameters(problem.fields[0].mesh).max())
 
 
+def solve_nested(case, level, degree, p, limits, newton_options=None, first=0):
+    """Solve levels first .. level, each from the previous solution; returns the finest
+    (problem, result) and the Newton iterations of every level."""
+    prev, its = None, []
+    for k in range(first, level + 1):
+        problem = case.problem(k, degree, p, limits)
+        result = problem.minimize(prolongate(*prev, problem) if prev else None,
+                                  **(newton_options or {}))
+        its.append(result.iterations)
+        if not result.converged:
+            break
+        prev = (problem, result.x)
+    return problem, result, its
+
+
 def run_study(case, levels, degree, p, start=0, progress=True, newton_options=None,
               extra=None):
     """Solve levels start .. start+levels-1; returns the list of rows (dicts).
