@@ -27,12 +27,14 @@ from .jets import Jet
 
 CHUNK_POINTS = 2 ** 15  # quadrature points per kernel call
 _COMPILED = {}
+_ALIVE = []
 compile_seconds = [0.0]  # compilation time spent in this process
 
 
 def fingerprint(obj, depth=0):
     """A hashable key equal for functions with the same code and closure values."""
     if depth > 10:
+        _ALIVE.append(obj)
         return ("id", id(obj))
     if obj is None or isinstance(obj, (bool, int, float, complex, str, bytes)):
         return (type(obj).__name__, obj)
@@ -47,6 +49,9 @@ def fingerprint(obj, depth=0):
         return ("fn", obj.__code__, cells, fingerprint(obj.__defaults__, depth + 1))
     if isinstance(obj, types.ModuleType):
         return ("module", obj.__name__)
+    if isinstance(obj, types.SimpleNamespace):  # parameters: by value, they may be changed
+        return ("namespace", fingerprint(vars(obj), depth + 1))
+    _ALIVE.append(obj)  # an identity key stays valid only while the object lives
     return ("id", id(obj))
 
 

@@ -132,3 +132,17 @@ def test_p2_hessian_is_exact():
     x = u.interpolate(lambda x: 3 * x[0] ** 2 - 2 * x[0] * x[1] + 5 * x[1] ** 2 + x[0])
     h = CellBasis(mesh, u.element_with_hessian).interpolate(x).hess
     assert np.allclose(h[0, 0], 6) and np.allclose(h[0, 1], -2) and np.allclose(h[1, 1], 10)
+
+
+def test_compiled_kernels_follow_parameter_changes():
+    """Kernels are reused across levels, but a changed parameter value recompiles."""
+    from types import SimpleNamespace
+    mesh = MeshTri().refined(3)
+    p = SimpleNamespace(f=1.0)
+    energies = []
+    for f in (1.0, 2.0):
+        p.f = f
+        u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+        r = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - p.f * u).minimize().check()
+        energies.append(r.energy)
+    assert energies[1] == pytest.approx(4 * energies[0], rel=1e-12)  # J scales with f^2
