@@ -48,7 +48,10 @@ def _gbasis_with_hessian(self, mapping, X, i, tind=None):
     ref = reference_hessian(self, X if X.ndim == 3 else X[:, None, :], i)
     if X.ndim == 2:
         ref = np.broadcast_to(ref, ref.shape[:2] + (invDF.shape[2], ref.shape[-1]))
-    hess = np.einsum('iaeq,ijeq,jbeq->abeq', invDF, ref, invDF)
+    if not ref.any():  # degree-one elements
+        hess = np.zeros((X.shape[0],) * 2 + invDF.shape[2:])
+    else:
+        hess = np.einsum('iaeq,ijeq,jbeq->abeq', invDF, ref, invDF, optimize=True)
     return (DiscreteField(value=np.asarray(field), grad=field.grad, hess=hess),)
 
 
