@@ -59,9 +59,9 @@ class Problem:
 
     # -- alpha0 -----------------------------------------------------------------
     def _resolve_alpha0(self):
-        needs = [c for c in self.constraints if c.multiplier is not None
-                 and (c.scaling.is_auto or c.name not in self.alpha0_limits)]
-        if needs and any(c.name not in self.alpha0_limits for c in needs):
+        needs = [c for c in self.constraints
+                 if c.multiplier is not None and c.name not in self.alpha0_limits]
+        if needs:
             self.alpha0_limits.update(self.stability_limits(needs))
         for c in self.constraints:
             limit = self.alpha0_limits.get(c.name, np.inf)
