@@ -27,7 +27,7 @@ def mesh_size(problem):
     return float(cell_diameters(problem.fields[0].mesh).max())
 
 
-def solve_nested(case, level, degree, p, limits, newton_options=None, first=0):
+def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, progress=False):
     """Solve levels first .. level, each from the previous solution; returns the finest
     (problem, result) and the Newton iterations of every level."""
     prev, its = None, []
@@ -36,6 +36,9 @@ def solve_nested(case, level, degree, p, limits, newton_options=None, first=0):
         result = problem.minimize(prolongate(*prev, problem) if prev else None,
                                   **(newton_options or {}))
         its.append(result.iterations)
+        if progress:
+            print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} Newton "
+                  f"iterations, {result.seconds:.2f} s", file=sys.stderr, flush=True)
         if not result.converged:
             break
         prev = (problem, result.x)
