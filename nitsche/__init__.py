@@ -16,7 +16,7 @@ if _cache != "off":
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 from .fields import Field  # noqa: E402
-from .measures import cells, facets  # noqa: E402
+from .measures import cells, facets, interface  # noqa: E402
 from .functional import Scaling, Integral, Equality, Inequality, Penalty, Constraint  # noqa: E402
 from .problem import Problem, StabilityWarning  # noqa: E402
 from .newton import Result, NotConverged  # noqa: E402
@@ -29,6 +29,6 @@ def minimize(energy, fields, constraints=(), x0=None, **options):
     return Problem(fields, energy, constraints).minimize(x0, **options)
 
 
-__all__ = ["Field", "cells", "facets", "Scaling", "Integral", "Equality", "Inequality",
+__all__ = ["Field", "cells", "facets", "interface", "Scaling", "Integral", "Equality", "Inequality",
            "Penalty", "Constraint", "Problem", "Result", "NotConverged", "StabilityWarning",
            "DerivativeError", "ops", "minimize"]

@@ -15,7 +15,8 @@ class Field:
         `mesh.boundaries`, a predicate `x -> bool` on boundary facet midpoints,
         or an array of dof indices.
     value: the prescribed values, a number or a function of the dof locations
-        `x` (shape (dim, n)); Lagrange elements only for functions.
+        `x` (shape (dim, n)); Lagrange elements only for functions (for a vector
+        Lagrange element the function returns the components, shape (dim, n)).
     """
 
     def __init__(self, name, mesh, element, fixed=None, value=0.0, intorder=None):
@@ -62,7 +63,12 @@ class Field:
     def _fixed_values(self, value):
         if not callable(value):
             return np.full(self.fixed_dofs.size, float(value))
-        if not self.is_lagrange or isinstance(self.element, ElementVector):
+        if self.is_lagrange and isinstance(self.element, ElementVector):
+            # value(x) -> (dim, n): component j % dim of dof j (dofs interleaved, as in prolongate)
+            x = self.basis.doflocs[:, self.fixed_dofs]
+            v = np.asarray(value(x), dtype=float).reshape(self.mesh.dim(), -1)
+            return v[self.fixed_dofs % self.mesh.dim(), np.arange(self.fixed_dofs.size)]
+        if not self.is_lagrange:
             raise ValueError(f"field '{self.name}': a function as fixed value needs a scalar "
                              "Lagrange element; give a number instead")
         return np.asarray(value(self.basis.doflocs[:, self.fixed_dofs]), dtype=float)

@@ -150,3 +150,125 @@ def facets(field, where=None, intorder=None):
     m = Facets(mesh, ids, intorder=intorder)
     m.attach(field)
     return m
+
+
+class Interface:
+    """The contact surface of one body, with the other bodies evaluated at its points.
+
+    The quadrature (weights W, points x, normals n, mesh size h) is that of `base`:
+    the boundary facets of the first body's mesh, or the cells of a membrane mesh.
+    A field on the base mesh is tabulated as on `base`.  A field on another mesh
+    is evaluated at the same physical points, mapped by `to_other(x)` (default:
+    the identity; e.g. lift a membrane's (x, y) to (x, y, z0) on a solid): each
+    point is located in the other mesh and the other field's basis functions of
+    that cell are evaluated there.  The local dofs of a measure element are the
+    union of the dofs of the other mesh's cells touched by its points (one cell
+    for matching meshes, a few for non-matching ones; unused slots carry zeros),
+    so the integral is exact wherever the other trace is polynomial on each
+    measure element (matching or nested meshes) and a consistent mortar-type
+    quadrature otherwise.
+    """
+
+    def __init__(self, base, to_other=None):
+        self.base, self.to_other = base, to_other
+        self.mesh, self.kind = base.mesh, base.kind
+        self._other = {}
+
+    def __getattr__(self, name):  # facets, basis, ... of the base measure
+        if name in ("base", "_other"):
+            raise AttributeError(name)
+        return getattr(self.base, name)
+
+    def _mine(self, field):
+        return field.mesh is self.mesh
+
+    def basis_for(self, field, hessian=False):
+        return self.base.basis_for(field, hessian) if self._mine(field) else field.basis
+
+    def attach(self, field):
+        return self.base.attach(field) if self._mine(field) else field.basis
+
+    weights = property(lambda self: self.base.weights)
+    points = property(lambda self: self.base.points)
+    normals = property(lambda self: self.base.normals)
+    h = property(lambda self: self.base.h)
+    nelems = property(lambda self: self.base.nelems)
+
+    def other_points(self, field):
+        """The base points mapped into the other field's mesh, shape (dim_other, E, Q)."""
+        x = self.points
+        X = np.asarray(self.to_other(x) if self.to_other is not None else x, dtype=float)
+        if X.shape[0] != field.mesh.dim():
+            raise ValueError(f"interface: points of dimension {X.shape[0]} for field "
+                             f"'{field.name}' on a {field.mesh.dim()}D mesh; give to_other")
+        return X
+
+    def _located(self, field):
+        """Cells (E, Q) of the other mesh holding the points, the slots of those cells in
+        each measure element and the slot cells (E, S)."""
+        if id(field) not in self._other:
+            from .locate import locate
+            X = self.other_points(field)
+            E, Q = X.shape[1:]
+            cells = locate(field.basis, X.reshape(X.shape[0], -1)).reshape(E, Q)
+            slots = np.empty((E, Q), dtype=np.int64)
+            owners = np.full((E, Q), -1, dtype=np.int64)
+            count = np.zeros(E, dtype=np.int64)
+            rows = np.arange(E)
+            for q in range(Q):
+                c = cells[:, q]
+                match = owners == c[:, None]
+                found = match.any(axis=1)
+                slots[:, q] = np.where(found, match.argmax(axis=1), count)
+                new = ~found
+                owners[rows[new], count[new]] = c[new]
+                count[new] += 1
+            S = int(count.max())
+            owners = owners[:, :S]
+            owners = np.where(owners < 0, owners[:, :1], owners)  # padding: a repeated cell
+            self._other[id(field)] = (X, cells, slots, owners)
+        return self._other[id(field)]
+
+    def tabulation(self, field, orders):
+        if self._mine(field):
+            return self.base.tabulation(field, orders)
+        X, cells, slots, owners = self._located(field)
+        E, Q = cells.shape
+        S = owners.shape[1]
+        basis = field.basis
+        elem = field.element_with_hessian if 2 in orders else field.element
+        pts = X.reshape(X.shape[0], -1)
+        ref = basis.mapping.invF(pts[:, :, None], tind=cells.ravel())  # (dim, E*Q, 1)
+        nloc = basis.Nbfun
+        parts = []
+        for k in range(nloc):
+            df = elem.gbasis(basis.mapping, ref, k, tind=cells.ravel())[0]
+            comps = [_part(df, o) for o in orders]  # (*shape, E*Q, 1)
+            parts.append(np.concatenate([a.reshape(-1, E, Q) for a in comps], axis=0))
+        phi = np.stack(parts, axis=-1).transpose(1, 2, 0, 3)  # (E, Q, c, nloc)
+        T = np.zeros((E, Q, phi.shape[2], S, nloc))
+        e, q = np.meshgrid(np.arange(E), np.arange(Q), indexing="ij")
+        T[e, q, :, slots, :] = phi
+        dofs = basis.element_dofs[:, owners]  # (nloc, E, S)
+        return (np.ascontiguousarray(T.reshape(E, Q, -1, S * nloc)),
+                np.ascontiguousarray(dofs.transpose(1, 2, 0).reshape(E, S * nloc)))
+
+    def shapes(self, field, orders):
+        if self._mine(field):
+            return self.base.shapes(field, orders)
+        value = _part(field.basis.basis[0][0], 0).shape[:-2]
+        return [value + (field.mesh.dim(),) * o for o in orders]
+
+
+def interface(field, where=None, to_other=None, intorder=None):
+    """An interface measure on the body of `field`: its boundary facets `where` (a
+    boundary name, a predicate on facet midpoints, or facet indices), or where='cells'
+    for all its cells (a membrane lying on another body).  Fields on other meshes are
+    evaluated at the same physical points, mapped by to_other(x) -> points of the
+    other mesh (arrays of shape (dim, elements, points)); the normal n is the outward
+    normal of this body."""
+    if isinstance(where, str) and where == "cells":
+        base = cells(field, intorder=intorder)
+    else:
+        base = facets(field, where, intorder=intorder)
+    return Interface(base, to_other)

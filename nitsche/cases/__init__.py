@@ -3,7 +3,7 @@ import importlib
 
 from ..case import Case
 
-MODULES = ["dirichlet", "signorini", "obstacle"]
+MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "membrane_solid"]
 
 
 def all_cases():

@@ -1,0 +1,172 @@
+"""A membrane pushed onto a linear elastic cube (paper section 6.2), 3D.
+
+    cube Omega_2 = (0,1)^3, displacement u (trilinear hexahedra), clamped at z = 0;
+    membrane Omega_1 = (0,1)^2 at height z = 1 + d, deflection w (bilinear
+    quadrilaterals, positive up), w = 0 on its boundary, downward pressure `load`;
+
+    J = int_{Omega_1} 1/2 mu |grad w|^2 + load w  +  int_{Omega_2} 1/2 sigma(u) : eps(u),
+    on the membrane cells:  g = d + w - u_z(x, y, 1) >= 0,
+    lambda = load - mu lap_h w  (the membrane is the less stiff side),  alpha = alpha0 h^2 / mu,
+    h = diameter of the membrane cell.
+
+The cube is evaluated at the membrane's quadrature points lifted to z = 1 (an
+interface measure); the meshes are uniform n x n and n x n x n, n = n0 2^level,
+and match on the top face.  lap_h of bilinears on rectangles is 0, so lambda = load
+and the multiplier term is stable for every alpha0.
+"""
+import os
+
+import jax.numpy as jnp
+import numpy as np
+from skfem import MeshHex, MeshQuad, ElementHex1, ElementQuad1, ElementVector, CellBasis
+
+import nitsche as ni
+from nitsche.ops import dot, grad, lap, sym_grad
+
+NAME = "membrane-solid"
+SUMMARY = "membrane pushed onto an elastic cube, 3D, hexahedra and quadrilaterals (section 6.2)"
+PARAMETERS = {
+    "mu": (1.0, "membrane tension"),
+    "load": (1.0, "downward pressure on the membrane"),
+    "d": (0.02, "initial gap between the membrane and the cube's top face"),
+    "E": (50.0, "Young's modulus of the cube"),
+    "nu": (0.3, "Poisson's ratio of the cube"),
+    "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h^2 / mu, h = membrane cell diameter)"),
+    "n0": (5, "cells per side at level 0 (level k: n0 2^k)"),
+}
+DEGREES = (1,)
+RATE = {1: 1.0}
+
+
+def lame(E, nu):
+    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+
+
+def lift(x):
+    """Membrane points (x, y) -> points (x, y, 1) on the cube's top face."""
+    return np.concatenate([x, np.ones_like(x[:1])], axis=0)
+
+
+def build(level, degree, p):
+    n = p.n0 * 2 ** level
+    t = np.linspace(0.0, 1.0, n + 1)
+    cube, membrane = MeshHex.init_tensor(t, t, t), MeshQuad.init_tensor(t, t)
+    u = ni.Field("u", cube, ElementVector(ElementHex1()), fixed=lambda x: x[2] < 1e-12)
+    w = ni.Field("w", membrane, ElementQuad1(), fixed="boundary")
+    G, Lam = lame(p.E, p.nu)
+
+    def solid(u):
+        eps = sym_grad(u)
+        return G * jnp.sum(eps * eps) + 0.5 * Lam * jnp.trace(eps) ** 2
+
+    def sheet(w):
+        return 0.5 * p.mu * dot(grad(w), grad(w)) + p.load * w
+
+    contact = ni.Inequality(
+        gap=lambda w, u: p.d + w - u[2],
+        multiplier=lambda w: p.load - p.mu * lap(w),
+        scaling=ni.Scaling(p.alpha0, h_power=2, stiffness=p.mu),
+        on=ni.interface(w, "cells", to_other=lift, intorder=2), name="contact")
+    return dict(fields=[u, w], energy=[ni.Integral(solid, ni.cells(u)), ni.Integral(sheet, ni.cells(w))],
+                constraints=[contact])
+
+
+# -- post-processing ---------------------------------------------------------------
+
+def stress(field, u, E, nu):
+    """sigma at the cell quadrature points of a 3D vector field, shape (3, 3, cells, points)."""
+    b = CellBasis(field.mesh, field.element)
+    Gr = np.asarray(b.interpolate(u).grad)
+    mu, lam = lame(E, nu)
+    eps = 0.5 * (Gr + Gr.transpose(1, 0, 2, 3))
+    tr = np.trace(eps)
+    return 2 * mu * eps + lam * tr * np.eye(3)[:, :, None, None]
+
+
+def principal_stresses(field, u, E, nu):
+    """Principal stresses at the cell quadrature points, descending: (3, cells, points);
+    [0] is the first (largest) principal stress."""
+    s = stress(field, u, E, nu)
+    ev = np.linalg.eigvalsh(np.moveaxis(s, (0, 1), (-2, -1)))  # ascending
+    return np.moveaxis(ev[..., ::-1], -1, 0)
+
+
+def report(problem, result, p):
+    v = problem.constraint_values(result.x)["contact"]
+    s1 = principal_stresses(problem.by_name["u"], result["u"], p.E, p.nu)[0]
+    w = result["w"]
+    return dict(contact_force=float((v["W"] * v["multiplier"]).sum()),
+                applied_load=float(p.load),  # on the unit square
+                min_deflection=float(w.min()),
+                first_principal_stress_max=float(s1.max()),
+                first_principal_stress_min=float(s1.min()))
+
+
+def study_extra(problem, result, row):
+    v = problem.constraint_values(result.x)["contact"]
+    row["contact_force"] = float((v["W"] * v["multiplier"]).sum())
+
+
+def figures(problem, result, p, outdir):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+    from nitsche.io import vertex_values
+    paths = []
+    fu, fw = problem.by_name["u"], problem.by_name["w"]
+    mesh = fu.mesh
+    d = vertex_values(fu, result["u"])
+    s1 = principal_stresses(fu, result["u"], p.E, p.nu)[0].mean(axis=1)
+    facets = mesh.boundary_facets()
+    owner = mesh.f2t[0, facets]
+    scale = 0.2 / max(np.abs(d).max(), 1e-300)
+    X = (mesh.p.T + scale * d)[mesh.facets[:, facets].T]  # (facets, 4, 3)
+    centre = X.mean(axis=1)
+    keep = (centre[:, 0] > -1) & (np.abs(mesh.p[2, mesh.facets[:, facets]].mean(0)) > 1e-12)
+    # the quad facet vertices of skfem are ordered around the face
+    fig = plt.figure(figsize=(7, 6))
+    ax = fig.add_subplot(projection="3d")
+    norm = plt.Normalize(s1.min(), s1.max())
+    coll = Poly3DCollection(X[keep], facecolors=plt.cm.coolwarm(norm(s1[owner[keep]])),
+                            edgecolors=(0, 0, 0, 0.15), linewidths=0.2)
+    ax.add_collection3d(coll)
+    ax.set_xlim(0, 1), ax.set_ylim(0, 1), ax.set_zlim(0, 1.1)
+    ax.view_init(elev=25, azim=-60)
+    sm = plt.cm.ScalarMappable(norm=norm, cmap="coolwarm")
+    fig.colorbar(sm, ax=ax, shrink=0.6, label="first principal stress")
+    ax.set_title(f"cube, displacement x{scale:.3g}, first principal stress")
+    path = os.path.join(outdir, "cube_principal_stress.png")
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    paths.append(path)
+
+    m = fw.mesh
+    wv = vertex_values(fw, result["w"])
+    fig = plt.figure(figsize=(11, 4.5))
+    ax = fig.add_subplot(1, 2, 1)
+    import matplotlib.tri as mtri
+    tri = mtri.Triangulation(m.p[0], m.p[1], np.r_[m.t[[0, 1, 2]].T, m.t[[0, 2, 3]].T])
+    im = ax.tricontourf(tri, wv, levels=30, cmap="viridis")
+    fig.colorbar(im, ax=ax, label="membrane deflection w")
+    v = problem.constraint_values(result.x)["contact"]
+    act = v["multiplier"].ravel() > 0
+    xq = v["x"].reshape(-1, 2)
+    ax.plot(xq[act, 0], xq[act, 1], "w.", ms=1)
+    ax.set_aspect("equal")
+    ax.set_title("membrane deflection (white: contact)")
+    ax = fig.add_subplot(1, 2, 2, projection="3d")
+    ax.plot_trisurf(tri, wv, cmap="viridis", linewidth=0)
+    ax.set_title("membrane deflection")
+    path = os.path.join(outdir, "membrane_deflection.png")
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    paths.append(path)
+    return paths
+
+
+PAPER = [
+    dict(command="run", degree=1, level=2, sets={}),
+    dict(command="study", degree=1, levels=4, sets={}),
+]
