@@ -107,7 +107,7 @@ class Term:
         self.W = _pad(W, npad)
         self.x = _pad(np.ascontiguousarray(np.moveaxis(x, 0, -1)), npad)
         self.n = _pad(np.ascontiguousarray(np.moveaxis(n, 0, -1)), npad) if self.has_normal \
-            else np.zeros((npad, self.nq, self.dim))
+            else np.broadcast_to(np.zeros((1, self.nq, self.dim)), (npad, self.nq, self.dim))
         self.h = _pad(np.asarray(measure.h, dtype=float), npad)
         self.npad = npad
         self._kernels = {}
