@@ -10,8 +10,11 @@ at most three in each variable is given *exactly* (up to round-off) by
 central second differences, so any such element gains `hess` without a
 hand-written table.
 """
+import copy
+
 import numpy as np
 from skfem import ElementVector
+from skfem.element import ElementGlobal
 from skfem.mapping import MappingAffine
 from skfem.element import ElementH1, DiscreteField
 
@@ -69,6 +72,23 @@ def with_hessian(element):
     wrapped = _CACHE[cls].__new__(_CACHE[cls])
     wrapped.__dict__.update(element.__dict__)
     return wrapped
+
+
+def own_instance(element):
+    """A fresh instance of an element that caches mesh data on itself, for one mesh.
+
+    scikit-fem's ElementGlobal (Morley, Argyris, BFS, ...) caches its inverse
+    Vandermonde matrices on the instance for the first mesh it sees, so an object
+    shared between meshes silently gives wrong bases; a copy without the cache is
+    made per field.  The copy keeps the instance's `derivatives` (scikit-fem
+    computes third derivatives, grad3, only when `element.derivatives = 3` is set
+    before the element is used).  Other elements are returned as they are."""
+    if not isinstance(element, ElementGlobal):
+        return element
+    own = copy.copy(element)
+    for cached in ("V", "_pbasis"):
+        own.__dict__.pop(cached, None)
+    return own
 
 
 def provided_orders(element):

@@ -3,8 +3,8 @@ import numpy as np
 from skfem import Basis, ElementVector
 from skfem.element import ElementH1
 
-from .elements import with_hessian, provided_orders
-from .locate import probes
+from .elements import with_hessian, provided_orders, own_instance
+from .locate import probes, locate
 
 
 class Field:
@@ -25,6 +25,7 @@ class Field:
         if name in ("x", "n", "h"):
             raise ValueError(f"field name {name!r} is reserved for the point, normal and mesh size")
         self.name, self.mesh = name, mesh
+        element = own_instance(element)  # one instance per mesh (ElementGlobal caches per instance)
         self.element = element
         self.element_with_hessian = with_hessian(element)  # used where a density asks for hess
         self.orders = provided_orders(self.element_with_hessian)
@@ -82,10 +83,76 @@ class Field:
     def prolongate(self, coarse, u):
         """This field's dofs of the coarse field's function `u` (exact for nested Lagrange spaces)."""
         if not (self.is_lagrange and coarse.is_lagrange):
-            raise NotImplementedError(
-                f"field '{self.name}': prolongation is implemented for Lagrange elements only")
+            return self._prolongate_by_dofs(coarse, u)
         values = probes(coarse.basis, self.basis.doflocs) @ u
         if isinstance(self.element, ElementVector):  # rows component-major, dofs interleaved
             j = np.arange(self.ndofs)
             values = values.reshape(self.mesh.dim(), -1)[j % self.mesh.dim(), j]
         return values
+
+    # -- Hermite-type elements (BFS, Morley): dofs are derivatives at points ---------
+    HERMITE_DOFS = ("u", "u_x", "u_y", "u_xy", "u_n")
+
+    def jets_at(self, u, x):
+        """Value (n,), gradient (dim, n) and Hessian (dim, dim, n) of the function with
+        dofs u at the points x (dim, n), from the cell that holds each point
+        (element-wise for non-conforming elements)."""
+        b, elem = self.basis, self.element_with_hessian
+        cells = locate(b, x)
+        X = b.mapping.invF(x[:, :, None], tind=cells)
+        out = [0.0, 0.0, 0.0]
+        for k in range(b.Nbfun):
+            df = elem.gbasis(b.mapping, X, k, tind=cells)[0]
+            c = u[b.element_dofs[k, cells]]
+            out[0] = out[0] + c * np.asarray(df)[..., 0]
+            out[1] = out[1] + c * np.asarray(df.grad)[..., 0]
+            if df.hess is not None:
+                out[2] = out[2] + c * np.asarray(df.hess)[..., 0]
+        return dict(value=out[0], grad=out[1], hess=None if np.isscalar(out[2]) else out[2])
+
+    def _dof_kinds(self):
+        """Name of every global dof (from the element's dofnames) and, for normal
+        derivative dofs, the normal the dof is taken along (2, ndofs)."""
+        e, b = self.element, self.basis
+        names = list(e.dofnames)
+        nn, nf = e.nodal_dofs, e.facet_dofs
+        if isinstance(e, ElementVector) or e.interior_dofs or e.edge_dofs or \
+                len(names) != nn + nf or set(names) - set(self.HERMITE_DOFS) or self.mesh.dim() != 2:
+            raise NotImplementedError(
+                f"field '{self.name}': prolongation is implemented for Lagrange elements and 2D "
+                f"elements with dofs {self.HERMITE_DOFS} (BFS, Morley), not {type(e).__name__}")
+        kind = np.empty(self.ndofs, dtype=object)
+        for j in range(nn):
+            kind[b.nodal_dofs[j]] = names[j]
+        for j in range(nf):
+            kind[b.facet_dofs[j]] = names[nn + j]
+        normal = np.zeros((2, self.ndofs))
+        nverts = self.mesh.t.shape[0]
+        for k in range(b.Nbfun):
+            local = names[k % nn] if k < nverts * nn else names[nn + (k - nverts * nn) % nf]
+            if local == "u_n":
+                # a Morley-type normal-derivative basis function has zero tangential
+                # derivative at its own facet midpoint, so its gradient there is the dof normal
+                g = e.gbasis(b.mapping, e.doflocs[k][:, None], k)[0].grad
+                normal[:, b.element_dofs[k]] = np.asarray(g)[:, :, 0]
+        return kind, normal
+
+    def _prolongate_by_dofs(self, coarse, u):
+        """Apply this field's dof functionals (u, u_x, u_y, u_xy at vertices, u_n at facet
+        midpoints) to the coarse function: exact for nested BFS spaces; for Morley (not
+        nested) an interpolant, used as the initial guess of the finer level."""
+        kind, normal = self._dof_kinds()
+        jets = coarse.jets_at(np.asarray(u, dtype=float), self.basis.doflocs)
+        v, g, H = jets["value"], jets["grad"], jets["hess"]
+        out = np.zeros(self.ndofs)
+        for name, val in (("u", v), ("u_x", g[0]), ("u_y", g[1]),
+                          ("u_n", np.sum(g * normal, axis=0))):
+            sel = kind == name
+            out[sel] = val[sel]
+        sel = kind == "u_xy"
+        if sel.any():
+            if H is None:
+                raise NotImplementedError(f"field '{coarse.name}': no Hessian for u_xy dofs")
+            out[sel] = H[0, 1][sel]
+        return out
+

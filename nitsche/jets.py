@@ -26,7 +26,9 @@ class Jet:
                 f"field '{self.name}': the density asks for {DERIVATIVE_NAMES[order]} "
                 f"({ORDERS[order]}), which its element does not provide (it gives "
                 f"{', '.join(ORDERS[k] for k in self._provided)}); choose an element that "
-                "provides them")
+                "provides them" + (" (scikit-fem's ElementGlobal elements, e.g. Morley, Argyris, "
+                                   "BFS, give grad3 when `element.derivatives = 3` is set on "
+                                   "the element instance)" if order == 3 else ""))
         if self._used is not None:
             self._used.add(order)
         return self._parts[order]

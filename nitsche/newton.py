@@ -8,6 +8,9 @@ from .linalg import IndefiniteHessian, make_solver
 from . import assembly
 
 
+STAGNATION_STEP = 1e-8  # relative Newton step accepted as converged once the residual stagnates
+
+
 class NotConverged(RuntimeError):
     """Raised by Result.check() when Newton's method did not converge."""
 
@@ -109,6 +112,18 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             break
         t = time.perf_counter()
         step, xn = 1.0, x.copy()
+        if (len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
+                and np.linalg.norm(dx) <= STAGNATION_STEP * max(np.linalg.norm(x[free]), 1e-300)):
+            # the residual no longer falls and the step is far below the discretization error:
+            # round-off floor (e.g. third-derivative multipliers, alpha ~ h^3, on fine meshes,
+            # where J_h itself is only known to ~1e-10 and a line search cannot resolve it)
+            x = x.copy()
+            x[free] += dx
+            converged, reason = True, (f"residual stagnated at round-off ({res / ref:.1e}), "
+                                       f"Newton step below {STAGNATION_STEP:.0e} of the solution")
+            it += 1
+            residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
+            break
         for _ in range(40):
             xn[free] = x[free] + step * dx
             En = problem.energy(xn)

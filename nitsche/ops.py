@@ -53,6 +53,22 @@ def normal_derivative(u, n):
     return jnp.dot(u.grad, n)
 
 
+def tangent(n):
+    """Unit tangent s = (-n_y, n_x) of a 2D facet with unit normal n (counter-clockwise
+    along the boundary for the outward normal)."""
+    return jnp.array([-n[1], n[0]])
+
+
+def normal_component(v, n):
+    """v . n: normal component of a vector (or first index of a tensor)."""
+    return jnp.tensordot(n, jnp.asarray(v), axes=1)
+
+
+def tangential_component(v, n):
+    """v . s with s = tangent(n) (2D)."""
+    return jnp.tensordot(tangent(n), jnp.asarray(v), axes=1)
+
+
 def plus(s):
     """[s]_+ = max(s, 0); its derivative counts s = 0 as active."""
     return jnp.where(s >= 0, s, 0.0)

@@ -69,7 +69,10 @@ def run_study(case, levels, degree, p, start=0, progress=True, newton_options=No
                    contact_measure=result.contact_measure, max_violation=result.max_violation,
                    seconds=time.perf_counter() - t0, compile_seconds=result.timings["compile"])
         if x0 is not None:
-            row["difference"] = energy_norm(problem, result.x - x0)
+            # a case may define the successive difference itself (non-nested spaces, e.g. Morley)
+            difference = getattr(case.module, "difference", None)
+            row["difference"] = (difference(*prev, problem, result.x) if difference
+                                 else energy_norm(problem, result.x - x0))
         row.update({f"error_{k}": v for k, v in case.errors(problem, result, p).items()})
         if extra:
             extra(problem, result, row)

@@ -3,7 +3,7 @@ import importlib
 
 from ..case import Case
 
-MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "membrane_solid"]
+MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "membrane_solid", "plate_plate", "plate_unilateral"]
 
 
 def all_cases():
