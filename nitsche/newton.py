@@ -110,8 +110,6 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         if not slope < 0:
             reason = "the Newton direction is not a descent direction: the Hessian is indefinite"
             break
-        t = time.perf_counter()
-        step, xn = 1.0, x.copy()
         if (len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
                 and np.linalg.norm(dx) <= STAGNATION_STEP * max(np.linalg.norm(x[free]), 1e-300)):
             # the residual no longer falls and the step is far below the discretization error:
@@ -124,6 +122,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             it += 1
             residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
             break
+        t = time.perf_counter()
+        step, xn = 1.0, x.copy()
         for _ in range(40):
             xn[free] = x[free] + step * dx
             En = problem.energy(xn)
