@@ -11,7 +11,8 @@ from .case import ParameterError, parse_assignments
 
 def _common(sp):
     sp.add_argument("case")
-    sp.add_argument("--degree", type=int, default=1, help="polynomial degree (default 1)")
+    sp.add_argument("--degree", type=int, default=None,
+                    help="polynomial degree (default: the case's first, 1 for most cases)")
     sp.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="set a case parameter (repeatable); see 'nitsche run CASE --help'")
     sp.add_argument("--out", default=None, help="output folder (default out/CASE)")
@@ -53,6 +54,8 @@ def main(argv=None):
             print(case.help())
             return 0
         p = case.parameters(parse_assignments(args.set))
+        if args.degree is None:  # e.g. Morley (2) or BFS (3) plates have one element only
+            args.degree = case.degrees[0]
         case.check_degree(args.degree)
         out = args.out or os.path.join("out", case.name)
         os.makedirs(out, exist_ok=True)
