@@ -51,19 +51,84 @@ class SuperLU:
 
 
 class AMGCG:
+    """CG preconditioned by one V-cycle of smoothed-aggregation AMG.
+
+    With `prepare(problem)` the near-nullspace of the aggregation is the rigid-body
+    modes of every vector field and the constants of every scalar field (free dofs),
+    which makes elasticity converge in a few iterations.  The hierarchy is reused
+    across Newton steps (the Hessians differ only on the active contact set) and
+    rebuilt when CG needs more than `rebuild_factor` times the iterations it needed
+    right after the last build."""
     name = "amg"
 
-    def __init__(self, rtol=1e-10, maxiter=2000):
-        self.rtol, self.maxiter = rtol, maxiter
+    def __init__(self, rtol=1e-10, maxiter=2000, rebuild_factor=1.5):
+        self.rtol, self.maxiter, self.rebuild_factor = rtol, maxiter, rebuild_factor
+        self.B, self.ml, self.base_iterations = None, None, None
+        self.iterations, self.setups = [], 0
+
+    def prepare(self, problem):
+        self.B = near_nullspace(problem)
+
+    def _build(self, A):
+        import pyamg
+        B = self.B if self.B is not None and self.B.shape[0] == A.shape[0] else None
+        self.ml = pyamg.smoothed_aggregation_solver(A, B=B, symmetry="symmetric")
+        self.M, self.base_iterations = self.ml.aspreconditioner(cycle="V"), None
+        self.setups += 1
+
+    def _cg(self, A, b, x0=None, maxiter=None):
+        count = [0]
+        x, info = spla.cg(A, b, x0=x0, rtol=self.rtol, maxiter=maxiter or self.maxiter, M=self.M,
+                          callback=lambda xk: count.__setitem__(0, count[0] + 1))
+        return x, info, count[0]
 
     def solve(self, A, b):
-        import pyamg
-        ml = pyamg.smoothed_aggregation_solver(A.tocsr(), symmetry="symmetric")
-        x, info = spla.cg(A, b, rtol=self.rtol, maxiter=self.maxiter,
-                          M=ml.aspreconditioner(cycle="V"))
+        A = A.tocsr()
+        if self.ml is None or self.ml.levels[0].A.shape != A.shape:
+            self._build(A)
+            x, info, its = self._cg(A, b)
+        else:  # the previous hierarchy, for a bounded number of iterations
+            limit = int(self.rebuild_factor * self.base_iterations) + 2
+            x, info, its = self._cg(A, b, maxiter=limit)
+            if info != 0:
+                self._build(A)
+                x, info, more = self._cg(A, b, x0=x)
+                its, self.base_iterations = its + more, more
+        if self.base_iterations is None:
+            self.base_iterations = its
+        self.iterations.append(its)
         if info != 0:
             raise RuntimeError(f"AMG-preconditioned CG did not converge in {self.maxiter} iterations")
+        if not np.all(np.isfinite(x)) or b @ x <= 0 < b @ b:
+            raise IndefiniteHessian("CG found a direction of non-positive curvature")
         return x
+
+
+def near_nullspace(problem):
+    """Columns spanning the near-nullspace of the energy on the free dofs: for each
+    vector Lagrange field its rigid-body modes (translations and rotations about the
+    origin), for each scalar field the constant (other fields: zero there)."""
+    from skfem import ElementVector
+    cols = []
+    for f in problem.fields:
+        off, n, d = problem.offsets[f.name], f.ndofs, f.mesh.dim()
+        if isinstance(f.element, ElementVector) and f.is_lagrange:
+            j = np.arange(n)
+            comp, X = j % d, f.basis.doflocs
+            for i in range(d):
+                v = np.zeros(problem.ndofs)
+                v[off + j[comp == i]] = 1.0
+                cols.append(v)
+            for a, b in ((0, 1), (1, 2), (0, 2))[:1 if d == 2 else 3]:
+                v = np.zeros(problem.ndofs)
+                v[off + j[comp == a]] = -X[b, comp == a]
+                v[off + j[comp == b]] = X[a, comp == b]
+                cols.append(v)
+        else:
+            v = np.zeros(problem.ndofs)
+            v[off:off + n] = 1.0
+            cols.append(v)
+    return np.ascontiguousarray(np.array(cols).T[problem.free])
 
 
 SOLVERS = {"cholmod": Cholmod, "superlu": SuperLU, "amg": AMGCG}

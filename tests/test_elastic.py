@@ -1,0 +1,189 @@
+"""Elastic bodies: the interface measure, two-body contact (5.2) with the Hertz
+check, and the membrane on an elastic cube in 3D (6.2)."""
+import numpy as np
+import pytest
+from skfem import MeshTri, MeshHex, ElementTriP1, ElementTriP2, ElementVector, ElementHex1
+
+import nitsche as ni
+from nitsche.cases import get
+from nitsche.cases import elastic_contact as ec
+from nitsche.cases import membrane_solid as ms
+from nitsche.study import run_study
+
+
+def solve(case, level, degree=1, solver="auto", **sets):
+    c = get(case)
+    p = c.parameters(sets)
+    problem = c.problem(level, degree, p)
+    result = problem.minimize(solver=solver).check()
+    return problem, result, p
+
+
+# -- the interface measure ------------------------------------------------------------
+
+@pytest.mark.parametrize("n2", [4, 3])  # matching and non-matching meshes
+@pytest.mark.parametrize("elem", [ElementTriP1, ElementTriP2])
+def test_interface_evaluates_the_other_body_exactly(n2, elem):
+    m1 = MeshTri.init_symmetric().refined(2)
+    m2 = MeshTri.init_tensor(np.linspace(0, 1, n2 + 1), np.linspace(1, 2, n2 + 1))
+    u1 = ni.Field("u1", m1, ElementVector(elem()))
+    u2 = ni.Field("u2", m2, ElementVector(elem()))
+    gamma = ni.interface(u1, lambda x: x[1] > 1 - 1e-12, intorder=4)
+    fun = lambda x: np.stack([1 + 2 * x[0] - x[1], x[0] * (1 - 0.5 * x[1]) * (elem is ElementTriP2)])
+    # nodal interpolant: exact for these polynomials
+    j = np.arange(u2.ndofs)
+    X = u2.basis.doflocs
+    coef = fun(X)[j % 2, j]
+    T, dofs = gamma.tabulation(u2, [0, 1])
+    values = np.einsum("eqck,ek->eqc", T, coef[dofs])[..., :2]  # value components
+    x = gamma.points
+    expected = np.moveaxis(fun(x), 0, -1)
+    assert np.allclose(values, expected, atol=1e-12)
+    assert gamma.normals is not None and np.allclose(gamma.normals[1], 1.0)
+    if n2 == 4:  # matching: every facet touches exactly one cell of the other mesh
+        assert dofs.shape[1] == u2.basis.Nbfun
+
+
+def test_interface_lifts_membrane_points_to_the_cube():
+    from skfem import MeshQuad, ElementQuad1
+    t = np.linspace(0, 1, 3)
+    u = ni.Field("u", MeshHex.init_tensor(t, t, t), ElementVector(ElementHex1()))
+    w = ni.Field("w", MeshQuad.init_tensor(t, t), ElementQuad1())
+    gamma = ni.interface(w, "cells", to_other=ms.lift, intorder=2)
+    j = np.arange(u.ndofs)
+    X = u.basis.doflocs
+    coef = np.stack([X[0], X[1] * X[2], 2 + X[0] * X[1] * X[2]])[j % 3, j]  # trilinear
+    T, dofs = gamma.tabulation(u, [0])
+    values = np.einsum("eqck,ek->eqc", T, coef[dofs])
+    x = gamma.points
+    assert np.allclose(values[..., 2], 2 + x[0] * x[1])
+    assert np.allclose(values[..., 1], x[1])
+
+
+# -- two-body elastic contact (5.2) ----------------------------------------------------
+
+@pytest.mark.parametrize("matching", [True, False])
+def test_punch_balances_forces_and_does_not_interpenetrate(matching):
+    violations = []
+    for level in (0, 1):
+        problem, result, p = solve("elastic-contact", level, matching=matching)
+        rep = ec.report(problem, result, p)
+        F = rep["contact_force"]
+        assert F > 0
+        # total contact force = reaction under body 1 = applied force on the punch
+        assert rep["reaction_body1"] == pytest.approx(F, rel=1e-8)
+        assert rep["reaction_body2"] == pytest.approx(-F, rel=1e-8)
+        violations.append(rep["max_interpenetration"])
+        # partial contact, as in methods.md (about 0.43 of the interface)
+        assert 0.3 < result.contact_measure < 0.6
+    # interpenetration is a consistency error: small and decreasing under refinement
+    assert violations[0] < 1e-2 * p.tilt  # displacements are about 0.4 tilt
+    assert violations[1] < violations[0]
+
+
+def test_punch_p2_converges():
+    problem, result, p = solve("elastic-contact", 0, degree=2)
+    rep = ec.report(problem, result, p)
+    assert rep["reaction_body1"] == pytest.approx(rep["contact_force"], rel=1e-8)
+
+
+def test_hertz_small():
+    """Plane-strain Hertz contact (parabolic profile on a flat): the pressure, the
+    half-width and the peak approach Hertz's values under refinement."""
+    errs = []
+    for level in (0, 1):
+        problem, result, p = solve("elastic-contact", level, setup="hertz")
+        c = ec.hertz_comparison(problem, result, p)
+        rep = ec.report(problem, result, p)
+        assert rep["reaction_body2"] == pytest.approx(-rep["contact_force"], rel=1e-8)
+        errs.append(c)
+    for key in ("error_half_width", "error_peak_pressure", "error_pressure_L2"):
+        assert errs[1][key] < 0.7 * errs[0][key]
+    assert errs[1]["error_half_width"] < 0.06
+    assert errs[1]["error_pressure_L2"] < 0.45
+
+
+def test_von_mises_of_a_homogeneous_state():
+    mesh = MeshTri.init_symmetric()
+    f = ni.Field("u", mesh, ElementVector(ElementTriP1()))
+    j = np.arange(f.ndofs)
+    X = f.basis.doflocs
+    e = 1e-3
+    u = np.stack([e * X[0], 0 * X[1]])[j % 2, j]  # eps_xx = e, plane strain
+    E, nu = 2.0, 0.3
+    mu, lam = ec.lame(E, nu)
+    sxx, syy, szz = (2 * mu + lam) * e, lam * e, lam * e
+    expected = np.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2))
+    assert np.allclose(ec.von_mises(f, u, E, nu), expected)
+
+
+# -- membrane on an elastic cube (6.2) ----------------------------------------------
+
+def test_principal_stresses_of_homogeneous_states():
+    t = np.linspace(0, 1, 3)
+    f = ni.Field("u", MeshHex.init_tensor(t, t, t), ElementVector(ElementHex1()))
+    j = np.arange(f.ndofs)
+    X = f.basis.doflocs
+    E, nu = 50.0, 0.3
+    # uniaxial tension s along x: principal stresses (s, 0, 0)
+    s = 2.0
+    u = np.stack([s / E * X[0], -nu * s / E * X[1], -nu * s / E * X[2]])[j % 3, j]
+    ps = ms.principal_stresses(f, u, E, nu)
+    assert np.allclose(ps[0], s) and np.allclose(ps[1:], 0.0, atol=1e-12)
+    # a general homogeneous strain: the eigenvalues of Hooke's stress, descending
+    eps = np.array([[1.0, 0.4, -0.2], [0.4, -0.5, 0.3], [-0.2, 0.3, 0.2]]) * 1e-3
+    u = (eps @ X)[j % 3, j]
+    mu, lam = ms.lame(E, nu)
+    sigma = 2 * mu * eps + lam * np.trace(eps) * np.eye(3)
+    expected = np.sort(np.linalg.eigvalsh(sigma))[::-1]
+    ps = ms.principal_stresses(f, u, E, nu)
+    for i in range(3):
+        assert np.allclose(ps[i], expected[i])
+
+
+def test_membrane_solid_small(tmp_path):
+    problem, result, p = solve("membrane-solid", 0)
+    rep = ms.report(problem, result, p)
+    assert result.contact_measure > 0.1 and rep["contact_force"] > 0
+    assert result.max_violation < 1e-12 or result.max_violation < 1e-3 * p.d
+    assert rep["min_deflection"] < -p.d  # the membrane passes the cube's top face level
+    assert rep["first_principal_stress_min"] < 0 < rep["first_principal_stress_max"]
+    # AMG-CG with rigid-body modes gives the same solution as the direct solver
+    amg = problem.minimize(solver="amg").check()
+    assert np.allclose(amg.x, result.x, atol=1e-8 * np.abs(result.x).max())
+    # one VTK file per body: hexahedra with a vector field, quadrilaterals with a scalar
+    import meshio
+    from nitsche.io import write_vtu
+    paths = write_vtu(str(tmp_path / "sol"), problem, result.x)
+    cube, sheet = (meshio.read(q) for q in paths)
+    assert cube.cells[0].type == "hexahedron" and cube.point_data["u"].shape == (cube.points.shape[0], 3)
+    assert sheet.cells[0].type == "quad" and sheet.point_data["w"].ndim == 1
+    figs = ms.figures(problem, result, p, str(tmp_path))
+    assert all((tmp_path / q.split("/")[-1]).stat().st_size > 0 for q in figs)
+
+
+def test_elastic_cases_are_listed_and_have_paper_runs():
+    for name, module in (("elastic-contact", ec), ("membrane-solid", ms)):
+        assert get(name).module is module
+        assert module.PAPER and all(r["command"] in ("run", "study") for r in module.PAPER)
+
+
+# -- the studies (--full) ---------------------------------------------------------------
+
+@pytest.mark.slow
+def test_membrane_solid_study_rate():
+    c = get("membrane-solid")
+    rows = run_study(c, 4, 1, c.parameters(), progress=False)
+    assert rows[-1]["unknowns"] >= 200_000
+    for r in rows[2:]:
+        assert abs(r["rate"] - 1.0) < 0.15
+
+
+@pytest.mark.slow
+def test_hertz_study_errors_decrease():
+    c = get("elastic-contact")
+    rows = run_study(c, 5, 1, c.parameters({"setup": "hertz"}), progress=False)
+    for key in ("error_half_width", "error_peak_pressure", "error_pressure_L2"):
+        vals = [r[key] for r in rows[1:]]
+        assert all(b < a for a, b in zip(vals, vals[1:])), (key, vals)
+    assert rows[-1]["error_pressure_L2"] < 0.1
