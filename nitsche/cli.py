@@ -37,6 +37,11 @@ def parser():
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")
     st.add_argument("--start", type=int, default=0, help="first level")
+    pa = sub.add_parser("paper", help="reproduce the figures of every case (its PAPER runs) "
+                        "into one folder with an index.md")
+    pa.add_argument("--out", default=os.path.join("out", "paper"), help="output folder (default out/paper)")
+    pa.add_argument("--fast", action="store_true", help="a small version: fewer levels")
+    pa.add_argument("--cases", nargs="+", default=None, metavar="CASE", help="only these cases")
     return p
 
 
@@ -47,6 +52,9 @@ def main(argv=None):
             for name, case in registry.all_cases().items():
                 print(f"{name:<16} {case.summary}")
             return 0
+        if args.command == "paper":
+            from .paper import paper
+            return paper(args.out, fast=args.fast, only=args.cases)
         case = registry.get(args.case)
         if args.help:
             parser()._subparsers._group_actions[0].choices[args.command].print_help()
@@ -133,7 +141,9 @@ def _study(case, args, p, out, options):
                                                     levels=rows))
     fig = plot_convergence(rows, os.path.join(out, "convergence.png"), rate,
                            f"{case.name}, P{args.degree}")
-    print(f"wrote {os.path.join(out, 'study.json')}, {fig}")
+    hook = getattr(case.module, "study_figures", None)  # optional: study_figures(rows, p, degree, out)
+    figs = [fig] + (hook(rows, p, args.degree, out) if hook else [])
+    print(f"wrote {os.path.join(out, 'study.json')}, {', '.join(figs)}")
     return 0
 
 

@@ -3,7 +3,7 @@ import importlib
 
 from ..case import Case
 
-MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "membrane_solid", "plate_plate", "plate_unilateral"]
+MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "membrane_solid", "plate_plate", "plate_unilateral", "two_membrane"]
 
 
 def all_cases():

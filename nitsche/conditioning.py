@@ -1,0 +1,79 @@
+"""Condition numbers of Newton Jacobians (2-norm).
+
+For a symmetric matrix cond = max |lambda| / min |lambda|; for a general one
+cond = sigma_max / sigma_min.  Small matrices are done exactly with dense
+eigenvalues (singular values); beyond `dense_limit` the extreme eigenvalues are
+estimated with ARPACK: the largest in magnitude directly, the smallest by
+shift-invert about 0 (one sparse LU factorization).
+"""
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+DENSE_LIMIT = 1200
+
+
+def _is_symmetric(A, rtol=1e-10):
+    d = A - A.T
+    big = abs(A).max() if A.nnz else 0.0
+    return (abs(d).max() if d.nnz else 0.0) <= rtol * max(big, 1e-300)
+
+
+def condition_number(A, dense_limit=DENSE_LIMIT, tol=1e-6):
+    """dict(cond, lambda_min, lambda_max, method, size) of a square matrix A.
+
+    lambda_min / lambda_max are the eigenvalues of smallest and largest magnitude
+    (symmetric A, signed: a negative lambda_min reveals an indefinite matrix) or
+    the extreme singular values (non-symmetric A)."""
+    A = sp.csr_matrix(A, dtype=float)
+    n = A.shape[0]
+    if A.shape != (n, n) or n == 0:
+        raise ValueError(f"condition_number needs a non-empty square matrix, got shape {A.shape}")
+    symmetric = _is_symmetric(A)
+    if n <= dense_limit:
+        M = A.toarray()
+        if symmetric:
+            w = sla.eigvalsh(M)
+            a = np.abs(w)
+            lo, hi, method = w[np.argmin(a)], w[np.argmax(a)], "dense eigenvalues"
+        else:
+            s = sla.svdvals(M)
+            lo, hi, method = s[-1], s[0], "dense singular values"
+    elif symmetric:
+        hi = spla.eigsh(A, k=1, which="LM", tol=tol, return_eigenvectors=False)[0]
+        lo = spla.eigsh(A.tocsc(), k=1, sigma=0.0, which="LM", tol=tol,
+                        return_eigenvectors=False)[0]
+        method = "ARPACK (shift-invert for the smallest)"
+    else:
+        hi = spla.svds(A, k=1, which="LM", tol=tol, return_singular_vectors=False)[0]
+        lu = spla.splu(A.tocsc())
+        inv = spla.LinearOperator((n, n), matvec=lu.solve, rmatvec=lambda v: lu.solve(v, trans="T"),
+                                  dtype=float)
+        lo = 1.0 / spla.svds(inv, k=1, which="LM", tol=tol, return_singular_vectors=False)[0]
+        method = "ARPACK singular values (inverse by sparse LU)"
+    lo, hi = float(lo), float(hi)
+    cond = abs(hi) / abs(lo) if lo != 0 else np.inf
+    return dict(cond=float(cond), lambda_min=lo, lambda_max=hi, method=method, size=int(n))
+
+
+def jacobian_condition(problem, x, **options):
+    """Condition number of the Newton Jacobian of a Problem at x, restricted to the
+    free unknowns (the matrix Newton's method solves with)."""
+    return condition_number(problem.newton_system(x)[2], **options)
+
+
+def fitted_slope(h, values, skip_coarse=None):
+    """Least-squares slope of log(values) against log(h); the coarsest point is left
+    out (pre-asymptotic) when there are at least 4 points, unless skip_coarse says
+    how many to leave out.  None with fewer than 2 usable points."""
+    h, v = np.asarray(h, float), np.asarray(values, float)
+    order = np.argsort(-h)
+    h, v = h[order], v[order]
+    keep = np.isfinite(v) & (v > 0) & (h > 0)
+    h, v = h[keep], v[keep]
+    skip = (1 if h.size >= 4 else 0) if skip_coarse is None else int(skip_coarse)
+    h, v = h[skip:], v[skip:]
+    if h.size < 2:
+        return None
+    return float(np.polyfit(np.log(h), np.log(v), 1)[0])
