@@ -8,6 +8,7 @@ from .linalg import IndefiniteHessian, make_solver
 from . import assembly
 
 
+ENERGY_ROUNDOFF = 1e-9  # relative change of J_h below which a full step is judged by the residual
 STAGNATION_STEP = 1e-8  # relative Newton step accepted as converged once the residual stagnates
 
 
@@ -71,8 +72,6 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     x = problem.initial(x0)
     free = problem.free
     lin = make_solver(solver, free.size, problem.dim)
-    if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
-        lin.prepare(problem)
     E0 = problem.energy(x)
     if not np.isfinite(E0):
         raise ValueError(f"the energy J_h is not finite at the initial guess (J_h = {E0}); "
@@ -131,6 +130,9 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             En = problem.energy(xn)
             if np.isfinite(En) and En <= E + 1e-4 * step * slope + 1e-14 * abs(E):
                 break
+            if step == 1.0 and np.isfinite(En) and abs(En - E) <= ENERGY_ROUNDOFF * abs(E) \
+                    and np.linalg.norm(problem.gradient(xn)[free]) < res:
+                break  # J_h is flat to round-off here (1/alpha ~ h^-4): judge the step by the residual
             step *= 0.5
         else:
             reason = "the line search found no decrease of J_h"
