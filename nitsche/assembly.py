@@ -25,7 +25,7 @@ from jax.extend.core import Literal
 
 from .jets import Jet
 
-CHUNK_POINTS = 2 ** 15  # quadrature points per kernel call
+CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small terms, the rest
 _COMPILED = {}
 _ALIVE = []
 compile_seconds = [0.0]  # compilation time spent in this process
@@ -89,7 +89,8 @@ class Term:
         if not self.layout:
             raise ValueError(f"{label} does not depend on any field")
         self.fields = [by_name[name] for name, _, _ in self.layout]
-        self.chunk = max(1, CHUNK_POINTS // self.nq)
+        small, large = CHUNK_POINTS
+        self.chunk = max(1, (small if self.nel * self.nq <= small else large) // self.nq)
         npad = -(-self.nel // self.chunk) * self.chunk
         self.T, self.dofs, self.kept = [], [], []
         for (name, parts, _) in self.layout:
@@ -206,13 +207,26 @@ class Term:
         return [np.concatenate([np.asarray(o[i]) for o in outs])[:self.nel] for i in range(len(outs[0]))]
 
 
-def _depends_on_first_input(jaxpr):
-    """Whether any output of a jaxpr depends on its first input (conservatively)."""
-    dependent = {jaxpr.invars[0]}
+def _dependent_outputs(jaxpr, dependent_inputs):
+    """Which outputs of a jaxpr depend on the flagged inputs (looking inside nested jit
+    calls; other nested computations are treated conservatively as dependent)."""
+    dependent = {v for v, d in zip(jaxpr.invars, dependent_inputs) if d}
     for eqn in jaxpr.eqns:
-        if any(not isinstance(v, Literal) and v in dependent for v in eqn.invars):
+        flags = [not isinstance(v, Literal) and v in dependent for v in eqn.invars]
+        if not any(flags):
+            continue
+        sub = eqn.params.get("jaxpr")
+        sub = getattr(sub, "jaxpr", sub)
+        if sub is not None and hasattr(sub, "invars") and len(sub.invars) == len(flags):
+            dependent.update(v for v, d in zip(eqn.outvars, _dependent_outputs(sub, flags)) if d)
+        else:
             dependent.update(eqn.outvars)
-    return any(not isinstance(v, Literal) and v in dependent for v in jaxpr.outvars)
+    return [not isinstance(v, Literal) and v in dependent for v in jaxpr.outvars]
+
+
+def _depends_on_first_input(jaxpr):
+    """Whether any output of a jaxpr depends on its first input."""
+    return any(_dependent_outputs(jaxpr, [True] + [False] * (len(jaxpr.invars) - 1)))
 
 
 def _build(kind, point_fn, sizes, chunk, nq):

@@ -146,3 +146,17 @@ def test_compiled_kernels_follow_parameter_changes():
         r = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - p.f * u).minimize().check()
         energies.append(r.energy)
     assert energies[1] == pytest.approx(4 * energies[0], rel=1e-12)  # J scales with f^2
+
+
+def test_quadratic_terms_are_recognized():
+    """Quadratic densities (also through nested jit calls such as jnp.trace) are assembled
+    once; the Nitsche inequality term is not quadratic."""
+    from skfem import ElementVector
+    mesh = MeshTri().refined(2)
+    u = ni.Field("u", mesh, ElementVector(ElementTriP1()), fixed="boundary")
+    energy = lambda u: jnp.trace(ni.ops.sym_grad(u)) ** 2 + ni.ops.ddot(u.grad, u.grad)
+    p = ni.Problem([u], energy)
+    assert p.energy_terms[0].is_quadratic
+    q = problem("inequality", "cells", 2)
+    assert q.energy_terms[0].is_quadratic and not q.constraint_terms[0].is_quadratic
+    assert problem("equality", "facets", 1).constraint_terms[0].is_quadratic
