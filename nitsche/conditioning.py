@@ -11,7 +11,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-DENSE_LIMIT = 1200
+DENSE_LIMIT = 500
 
 
 def _is_symmetric(A, rtol=1e-10):
@@ -20,7 +20,7 @@ def _is_symmetric(A, rtol=1e-10):
     return (abs(d).max() if d.nnz else 0.0) <= rtol * max(big, 1e-300)
 
 
-def condition_number(A, dense_limit=DENSE_LIMIT, tol=1e-6):
+def condition_number(A, dense_limit=DENSE_LIMIT, tol=1e-5):
     """dict(cond, lambda_min, lambda_max, method, size) of a square matrix A.
 
     lambda_min / lambda_max are the eigenvalues of smallest and largest magnitude
