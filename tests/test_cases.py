@@ -44,7 +44,7 @@ def test_signorini_active_set_and_violation():
     assert all(r["active_count"] > 0 for r in rows)
     case = get("signorini")
     p = case.parameters()
-    problem = case.problem(3, 1, p)
+    problem = case.problem(3, 1, p, case.alpha0_limits(1, p))
     res = problem.minimize().check()
     contact = res.constraints["contact"]
     assert contact["active_count"] > 0
@@ -60,9 +60,9 @@ def test_signorini_active_set_and_violation():
 def test_signorini_violation_shrinks_with_h():
     case = get("signorini")
     p = case.parameters()
-    viol = []
+    viol, limits = [], case.alpha0_limits(2, p)
     for level in range(1, 5):
-        problem = case.problem(level, 2, p)
+        problem = case.problem(level, 2, p, limits)
         res = problem.minimize().check()
         viol.append(res.constraints["contact"]["max_violation"])
     assert all(b <= a for a, b in zip(viol, viol[1:]))
