@@ -72,6 +72,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     x = problem.initial(x0)
     free = problem.free
     lin = make_solver(solver, free.size, problem.dim)
+    if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
+        lin.prepare(problem)
     E0 = problem.energy(x)
     if not np.isfinite(E0):
         raise ValueError(f"the energy J_h is not finite at the initial guess (J_h = {E0}); "
