@@ -14,8 +14,13 @@ eps = penalty_alpha0 h^s / mu1, s = penalty_power.  For P1, s = 2 is optimal (an
 the same as Nitsche: lambda_h = f1 is a constant, so Nitsche is a penalty with a
 shifted gap).  The penalty is not consistent: its constraint violation is
 eps * lambda = O(h^s), and for P2 the O(h^2)-type accuracy of Nitsche needs s > 2;
-the default ('auto') is s = 2 for P1 and s = 3 for P2.  The price is conditioning:
-the Jacobian's condition number grows like h^-s instead of h^-2.
+the default ('auto') is s = 2 for P1 and s = 3 for P2.  Measured with P2 (levels 2, 3,
+4; penalty_alpha0 = 0.1): the energy-norm distance between the penalty and the Nitsche
+solutions is 2.1e-3, 6.0e-4, 2.2e-4 for s = 2 (35-45 % of the discretization error
+|u_k - I u_(k-1)|_E = 4.8e-3, 1.7e-3, 6.3e-4, and a constraint violation 15x that of
+Nitsche), but 3.7e-4, 9.6e-5, 3.7e-5 for s = 3 (6-8 %, violation as small as Nitsche's).
+The price is conditioning: the Jacobian's condition number grows like h^-s instead of
+h^-2 (measured slopes -2.00 for Nitsche, -2.95 for the penalty with s = 3, P2).
 
 Base mesh: MeshTri().refined(2) (4 x 4 squares, each cut into two triangles);
 level N = N further uniform refinements.
@@ -160,8 +165,7 @@ def study_extra(problem, result, row):
         row["penalty_power"] = penalty_power(p, degree)
     if p.compare:
         prob, res = companion(problem, result)
-        other = prob.constraints[0].kind
-        other = "penalty" if other == "penalty" else "nitsche"
+        other = "penalty" if p.method == "nitsche" else "nitsche"
         if not res.converged:
             row[f"condition_number_{other}"] = None
             row[f"{other}_reason"] = res.reason
