@@ -15,7 +15,6 @@ import os
 import statistics
 import time
 
-import numpy as np
 from skfem import BilinearForm, LinearForm, asm, condense
 from skfem.helpers import dot, grad
 

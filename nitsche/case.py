@@ -10,11 +10,14 @@ A case module defines
 and optionally
     errors(problem, result, p) -> {name: error against an exact solution}
 """
-import argparse
 import math
+from collections import namedtuple
 from types import SimpleNamespace
 
 from .problem import Problem
+
+
+Setup = namedtuple("Setup", "case level degree p")
 
 
 class ParameterError(ValueError):
@@ -54,8 +57,10 @@ class Case:
             raise ParameterError(f"level must be >= 0, got {level}")
         self.check_degree(degree)
         spec = self.module.build(level, degree, p)
-        return Problem(spec["fields"], spec["energy"], spec.get("constraints", ()),
-                       alpha0_limits=alpha0_limits)
+        problem = Problem(spec["fields"], spec["energy"], spec.get("constraints", ()),
+                          alpha0_limits=alpha0_limits)
+        problem.setup = Setup(self.name, level, degree, p)  # for the case's report hooks
+        return problem
 
     def alpha0_limits(self, degree, p, level=1):
         """Stability limits of alpha0 computed on a coarse level of this case."""

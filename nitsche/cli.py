@@ -3,7 +3,6 @@ import argparse
 import os
 import sys
 import time
-import warnings
 
 from . import cases as registry
 from .case import ParameterError, parse_assignments
@@ -129,8 +128,7 @@ def _study(case, args, p, out, options):
     from .study import run_study, table
     from .newton import NotConverged
     try:
-        rows = run_study(case, args.levels, args.degree, p, start=args.start, newton_options=options,
-                         extra=getattr(case.module, "study_extra", None))
+        rows = run_study(case, args.levels, args.degree, p, start=args.start, newton_options=options)
     except NotConverged as e:
         print(f"nitsche: study stopped: {e}", file=sys.stderr)
         return 1

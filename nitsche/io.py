@@ -27,7 +27,6 @@ def vertex_values(field, u):
     """Values of a Lagrange field at the mesh vertices (the first nodal dofs)."""
     nv = field.mesh.nvertices
     if isinstance(field.element, ElementVector):
-        d = field.mesh.dim()
         return np.asarray(u[field.basis.nodal_dofs[:, :nv]]).T  # (nv, d)
     return np.asarray(u[field.basis.nodal_dofs[0, :nv]])
 

@@ -7,7 +7,6 @@ gradients preconditioned by smoothed-aggregation algebraic multigrid (pyamg),
 for large and 3D problems.
 """
 import numpy as np
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 try:

@@ -49,7 +49,7 @@ class Result:
     def report(self):
         lines = [f"Newton: {'converged' if self.converged else 'NOT CONVERGED'} ({self.reason}) "
                  f"in {self.iterations} iterations, solver {self.solver}",
-                 f"  residuals: " + " ".join(f"{r:.2e}" for r in self.residuals),
+                 "  residuals: " + " ".join(f"{r:.2e}" for r in self.residuals),
                  f"  energy J_h = {self.energy:.12g}",
                  f"  active points {self.active_count}, contact measure {self.contact_measure:.6g}, "
                  f"largest violation {self.max_violation:.3e}",

@@ -5,7 +5,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .assembly import Assembler, Term
-from .functional import Integral, Constraint
+from .functional import Integral
 from .measures import cells
 
 

@@ -45,11 +45,11 @@ def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, p
     return problem, result, its
 
 
-def run_study(case, levels, degree, p, start=0, progress=True, newton_options=None,
-              extra=None):
+def run_study(case, levels, degree, p, start=0, progress=True, newton_options=None):
     """Solve levels start .. start+levels-1; returns the list of rows (dicts).
 
-    extra(problem, result, row) may add case-specific quantities to each row."""
+    A case's optional hook study_extra(problem, result, row) adds its own quantities."""
+    extra = getattr(case.module, "study_extra", None)
     limits = case.alpha0_limits(degree, p)
     rows, prev = [], None
     out = sys.stderr

@@ -2,7 +2,6 @@
 plate energies against exact solutions, and the cases plate-plate (6.3) and
 plate-unilateral (6.4)."""
 import itertools
-from types import SimpleNamespace
 
 import jax.numpy as jnp
 import numpy as np
@@ -246,8 +245,7 @@ def test_paper_lists():
 @pytest.mark.slow
 def test_plate_plate_study_rate_is_linear():
     case = Case(plate_plate)
-    rows = run_study(case, 6, 2, case.parameters(), progress=False,
-                     extra=plate_plate.study_extra)
+    rows = run_study(case, 6, 2, case.parameters(), progress=False)
     assert abs(rows[-1]["rate"] - 1.0) < 0.15 and abs(rows[-2]["rate"] - 1.0) < 0.15
     area = [r["contact_area"] for r in rows]
     assert abs(area[-1] - area[-2]) < abs(area[-2] - area[-3])  # contact area converges
@@ -257,8 +255,7 @@ def test_plate_plate_study_rate_is_linear():
 @pytest.mark.slow
 def test_plate_unilateral_study_rate_and_lifted_corners():
     case = Case(plate_unilateral)
-    rows = run_study(case, 6, 3, case.parameters(), progress=False,
-                     extra=plate_unilateral.study_extra)
+    rows = run_study(case, 6, 3, case.parameters(), progress=False)
     d = [r["difference"] for r in rows[-5:]]
     assert np.log2(d[0] / d[-1]) / 4 >= 1.7  # mean rate over the finest four steps
     lifted = [r["lifted_length"] for r in rows[-3:]]

@@ -22,7 +22,7 @@ def params(**kw):
 
 
 def study(degree, levels, **kw):
-    return run_study(CASE, levels, degree, params(**kw), progress=False, extra=tm.study_extra)
+    return run_study(CASE, levels, degree, params(**kw), progress=False)
 
 
 def check_p1_study(rows):

@@ -45,7 +45,6 @@ def shear_force(u, n, D, nu):
 def build(level, degree, p):
     mesh = MeshQuad().refined(level + 2)
     u = ni.Field("u", mesh, ElementQuadBFSLocal())
-    u.load = p.f  # read by `study_extra`
 
     def energy(u):
         H = hess(u)
@@ -101,8 +100,7 @@ def report(problem, result, p):
 
 
 def study_extra(problem, result, row):
-    from types import SimpleNamespace
-    q = support_quantities(problem, result, SimpleNamespace(f=problem.fields[0].load))
+    q = support_quantities(problem, result, problem.setup.p)
     row.update(lifted_length=q["lifted_length_mean"], lifted_per_edge=q["lifted_length"],
                reaction_balance=q["reaction_balance"], min_shear_reaction=q["min_shear_reaction"],
                corner_lift=q["corner_lift"][2])

@@ -87,7 +87,6 @@ def build(level, degree, p):
     element = ElementTriP1 if degree == 1 else ElementTriP2
     u1 = ni.Field("u1", mesh, element(), fixed="boundary")
     u2 = ni.Field("u2", mesh, element(), fixed="boundary")
-    u1.case_setup = (level, degree, p)  # read by study_extra (the companion method)
 
     def energy(u1, u2):
         return (0.5 * p.mu1 * dot(grad(u1), grad(u1)) + 0.5 * p.mu2 * dot(grad(u2), grad(u2))
@@ -132,7 +131,7 @@ def report(problem, result, p):
 
 
 def problem_degree(problem):
-    return problem.fields[0].case_setup[1]
+    return problem.setup.degree
 
 
 _LIMITS = {}  # alpha0 limits of the companion Nitsche problem, per (degree, parameters)
@@ -142,7 +141,7 @@ def companion(problem, result):
     """The other method at the same level and parameters, solved from this solution."""
     from nitsche.case import Case
     import sys
-    level, degree, p = problem.fields[0].case_setup
+    _, level, degree, p = problem.setup
     other = vars(p).copy()
     other["method"] = "penalty" if p.method == "nitsche" else "nitsche"
     case = Case(sys.modules[__name__])
@@ -156,7 +155,7 @@ def companion(problem, result):
 
 
 def study_extra(problem, result, row):
-    level, degree, p = problem.fields[0].case_setup
+    _, level, degree, p = problem.setup
     row["method"] = p.method
     row.update(contact_summary(result))
     row.update(conditioning(problem, result))
@@ -197,7 +196,7 @@ def figures(problem, result, p, outdir):
     v = problem.constraint_values(result.x)["contact"]
     per_cell = (v["multiplier"] * v["W"]).sum(1) / v["W"].sum(1)
     summary = contact_summary(result)
-    level, degree, _ = f1.case_setup
+    _, level, degree, _ = problem.setup
 
     fig = plt.figure(figsize=(12.5, 5.2))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
