@@ -5,7 +5,7 @@ PY      = $(VENV)/bin/python
 PIP     = $(VENV)/bin/pip
 OUT    ?= out
 
-.PHONY: install demo test test-full bench clean system-deps
+.PHONY: install demo paper test test-full bench clean system-deps
 
 $(VENV)/.installed: pyproject.toml
 	$(MAKE) system-deps
@@ -28,9 +28,13 @@ system-deps:
 	  || echo "could not install libsuitesparse-dev: falling back to SciPy's solver"; \
 	fi
 
+# every paper case, fast (about 2 minutes): figures and tables in $(OUT)/paper/index.md
 demo: install
-	$(VENV)/bin/nitsche study obstacle --degree 1 --levels 6 --out $(OUT)/obstacle-study
-	$(VENV)/bin/nitsche run obstacle --degree 2 --level 4 --out $(OUT)/obstacle
+	$(VENV)/bin/nitsche paper --fast --out $(OUT)/paper
+
+# the full reproduction (tens of minutes)
+paper: install
+	$(VENV)/bin/nitsche paper --out $(OUT)/paper-full
 
 test: install
 	$(VENV)/bin/pytest -q

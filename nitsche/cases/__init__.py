@@ -3,7 +3,8 @@ import importlib
 
 from ..case import Case
 
-MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "membrane_solid", "plate_plate", "plate_unilateral", "two_membrane"]
+MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "two_membrane",
+           "membrane_solid", "plate_plate", "plate_unilateral"]
 
 
 def all_cases():

@@ -22,6 +22,12 @@ PARAMETERS = {
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 2.0}
 
+PAPER = [
+    dict(command="study", degree=1, levels=6, sets={}, fast=dict(levels=4)),
+    dict(command="study", degree=2, levels=5, sets={}, fast=dict(levels=3)),
+    dict(command="run", degree=2, level=3, sets={}, fast=dict(level=2)),
+]
+
 
 def exact(x, xp=np):
     return xp.sin(np.pi * x[0]) * xp.cos(np.pi * x[1]) + x[0] ** 2 * x[1]

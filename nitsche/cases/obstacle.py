@@ -25,6 +25,12 @@ PARAMETERS = {
 }
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.5}
+
+PAPER = [
+    dict(command="run", degree=2, level=4, sets={}, fast=dict(level=2)),
+    dict(command="study", degree=1, levels=7, sets={}, fast=dict(levels=4)),
+    dict(command="study", degree=2, levels=6, sets={}, fast=dict(levels=4)),
+]
 R_STAR = 0.6979651482
 
 

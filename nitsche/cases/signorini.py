@@ -25,6 +25,13 @@ PARAMETERS = {
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 2.0}
 
+PAPER = [
+    dict(command="study", degree=1, levels=6, sets={}, fast=dict(levels=4)),
+    dict(command="study", degree=2, levels=5, sets={}, fast=dict(levels=3)),
+    dict(command="study", degree=2, levels=5, sets={"method": "penalty"}, fast=dict(levels=3)),
+    dict(command="run", degree=2, level=3, sets={}, fast=dict(level=2)),
+]
+
 
 def exact(x, xp=np):
     a, b = xp.maximum(x[0] - 0.5, 0.0), xp.maximum(0.5 - x[0], 0.0)
