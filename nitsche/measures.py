@@ -10,6 +10,7 @@ for a boundary facet it is the diameter of the cell that owns the facet.
 """
 import numpy as np
 from skfem import CellBasis, FacetBasis
+from skfem.quadrature import get_quadrature
 
 from .jets import ORDERS
 
@@ -101,9 +102,15 @@ class Cells(Measure):
         return cell_diameters(self.mesh)
 
     def attach(self, field):
-        if self.basis is None and self.intorder is None and field.mesh is self.mesh:
-            self._bases[(id(field), False)] = field.basis  # reuse the field's own quadrature
+        if field.mesh is self.mesh and self._same_quadrature(field.basis):
+            self._bases[(id(field), False)] = field.basis  # reuse the field's own basis
         return super().attach(field)
+
+    def _same_quadrature(self, basis):
+        if self.intorder is None:
+            return self.basis is None
+        X, W = get_quadrature(self.mesh.refdom, self.intorder)
+        return X.shape == basis.X.shape and np.array_equal(X, basis.X) and np.array_equal(W, basis.W)
 
 
 class Facets(Measure):
