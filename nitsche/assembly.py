@@ -170,10 +170,13 @@ class Term:
         """True when d2w/dz2 does not depend on z (found from the computation graph):
         then J restricted to this term is a quadratic form, assembled once."""
         if not hasattr(self, "_quadratic"):
-            m = sum(mf for mf, _ in self.sizes)
-            vec = jnp.zeros(self.dim)
-            jaxpr = jax.make_jaxpr(jax.hessian(self._point_fn()))(jnp.zeros(m), vec, vec, 0.1)
-            self._quadratic = not _depends_on_first_input(jaxpr.jaxpr)
+            key = ("quadratic", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
+            if key not in _COMPILED:
+                m = sum(mf for mf, _ in self.sizes)
+                vec = jnp.zeros(self.dim)
+                jaxpr = jax.make_jaxpr(jax.hessian(self._point_fn()))(jnp.zeros(m), vec, vec, 0.1)
+                _COMPILED[key] = not _depends_on_first_input(jaxpr.jaxpr)
+            self._quadratic = _COMPILED[key]
         return self._quadratic
 
     def kernel(self, kind):

@@ -30,6 +30,7 @@ class Case:
         self.name, self.summary = module.NAME, module.SUMMARY
         self.defaults = dict(module.PARAMETERS)
         self.degrees = tuple(module.DEGREES)
+        self._limits = {}
 
     def help(self):
         lines = [f"{self.name}: {self.summary}", f"degrees: {', '.join(map(str, self.degrees))}",
@@ -63,8 +64,12 @@ class Case:
         return problem
 
     def alpha0_limits(self, degree, p, level=1):
-        """Stability limits of alpha0 computed on a coarse level of this case."""
-        return self.problem(level, degree, p).alpha0_limits
+        """Stability limits of alpha0 computed on a coarse level of this case (remembered
+        per degree and parameter values)."""
+        key = (degree, level, tuple(sorted((k, repr(v)) for k, v in vars(p).items())))
+        if key not in self._limits:
+            self._limits[key] = self.problem(level, degree, p).alpha0_limits
+        return dict(self._limits[key])
 
     def errors(self, problem, result, p):
         fn = getattr(self.module, "errors", None)

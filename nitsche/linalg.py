@@ -23,17 +23,22 @@ class IndefiniteHessian(RuntimeError):
 
 
 class Cholmod:
+    """Sparse Cholesky: symbolic analysis once, a numeric factorization per changed matrix."""
     name = "cholmod"
 
     def __init__(self):
-        self.factor = None
+        self.factor = self.factored = None
 
     def solve(self, A, b):
         A = A.tocsc()
+        if self.factor is not None and np.array_equal(A.data, self.factored):
+            return self.factor(b)  # same matrix as the last step (active set unchanged)
         try:
             if self.factor is None:
                 self.factor = analyze(A)
+            self.factored = None
             self.factor.cholesky_inplace(A)
+            self.factored = A.data.copy()
         except CholmodNotPositiveDefiniteError as e:
             raise IndefiniteHessian(str(e))
         return self.factor(b)

@@ -1,4 +1,5 @@
 """The problems of the paper, one module each (public API only)."""
+import functools
 import importlib
 
 from ..case import Case
@@ -7,8 +8,9 @@ MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "two_membran
            "membrane_solid", "plate_plate", "plate_unilateral"]
 
 
+@functools.lru_cache(maxsize=None)
 def all_cases():
-    """{name: Case} in the order of the paper."""
+    """{name: Case} in the order of the paper (one Case object per case and process)."""
     cases = [Case(importlib.import_module(f"{__name__}.{m}")) for m in MODULES]
     return {c.name: c for c in cases}
 

@@ -134,22 +134,15 @@ def problem_degree(problem):
     return problem.setup.degree
 
 
-_LIMITS = {}  # alpha0 limits of the companion Nitsche problem, per (degree, parameters)
-
-
 def companion(problem, result):
     """The other method at the same level and parameters, solved from this solution."""
-    from nitsche.case import Case
-    import sys
+    from nitsche.cases import get
     _, level, degree, p = problem.setup
     other = vars(p).copy()
     other["method"] = "penalty" if p.method == "nitsche" else "nitsche"
-    case = Case(sys.modules[__name__])
+    case = get(NAME)
     q = case.parameters(other)
-    key = (degree, tuple(sorted((k, str(v)) for k, v in other.items())))
-    if key not in _LIMITS:
-        _LIMITS[key] = case.alpha0_limits(degree, q)
-    prob = case.problem(level, degree, q, _LIMITS[key])
+    prob = case.problem(level, degree, q, case.alpha0_limits(degree, q))
     res = prob.minimize(result.x)
     return prob, res
 
