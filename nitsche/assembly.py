@@ -56,7 +56,8 @@ def fingerprint(obj, depth=0):
 
 
 def _pad(a, n):
-    """Pad axis 0 to length n by repeating the last entry (padding results are discarded)."""
+    """Pad axis 0 to length n by repeating the last entry (results for the padding are
+    discarded); only the last chunk of a term is padded."""
     if a.shape[0] == n:
         return a
     return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
@@ -91,7 +92,6 @@ class Term:
         self.fields = [by_name[name] for name, _, _ in self.layout]
         small, large = CHUNK_POINTS
         self.chunk = max(1, (small if self.nel * self.nq <= small else large) // self.nq)
-        npad = -(-self.nel // self.chunk) * self.chunk
         self.T, self.dofs, self.kept = [], [], []
         for (name, parts, _) in self.layout:
             T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
@@ -100,17 +100,16 @@ class Term:
             kept = np.array([c for c in range(T.shape[2]) if T[:, :, c].any()], dtype=int)
             if kept.size == 0:
                 kept = np.arange(1)
-            self.T.append(_pad(np.ascontiguousarray(T[:, :, kept]), npad))
+            self.T.append(T if kept.size == T.shape[2] else np.ascontiguousarray(T[:, :, kept]))
             self.kept.append(tuple(kept.tolist()))
             self.dofs.append(dofs)
         self.field_dofs = [d + offsets[f.name] for d, f in zip(self.dofs, self.fields)]
         self.global_dofs = np.concatenate(self.field_dofs, axis=1)
-        self.W = _pad(W, npad)
-        self.x = _pad(np.ascontiguousarray(np.moveaxis(x, 0, -1)), npad)
-        self.n = _pad(np.ascontiguousarray(np.moveaxis(n, 0, -1)), npad) if self.has_normal \
-            else np.broadcast_to(np.zeros((1, self.nq, self.dim)), (npad, self.nq, self.dim))
-        self.h = _pad(np.asarray(measure.h, dtype=float), npad)
-        self.npad = npad
+        self.W = W
+        self.x = np.ascontiguousarray(np.moveaxis(x, 0, -1))
+        self.n = np.ascontiguousarray(np.moveaxis(n, 0, -1)) if self.has_normal \
+            else np.broadcast_to(np.zeros((1, self.nq, self.dim)), (self.nel, self.nq, self.dim))
+        self.h = np.asarray(measure.h, dtype=float)
         self._kernels = {}
 
     def _record(self, fs):
@@ -179,6 +178,14 @@ class Term:
             self._quadratic = _COMPILED[key]
         return self._quadratic
 
+    def quadratic_parts(self):
+        """Energy, element gradients and element Hessians at x = 0 of a quadratic term,
+        computed once; the tabulations are released afterwards (they are not needed again)."""
+        if not hasattr(self, "_parts"):
+            self._parts = self.run("full", np.zeros(1 + max(int(d.max()) for d in self.field_dofs)))
+            self.T = self.W = self.x = self.n = self.h = None
+        return self._parts
+
     def kernel(self, kind):
         """The compiled chunk kernel: 'energy', 'full' (energy, gradient, Hessian) or 'values'."""
         if kind in self._kernels:
@@ -201,12 +208,12 @@ class Term:
     def run(self, kind, x):
         """Apply a kernel to all elements for the global dof vector x."""
         kern = self.kernel(kind)
-        us = [_pad(x[d], self.npad) for d in self.field_dofs]
+        us = [x[d] for d in self.field_dofs]
         outs = []
-        for s in range(0, self.npad, self.chunk):
+        for s in range(0, self.nel, self.chunk):
             sl = slice(s, s + self.chunk)
-            outs.append(kern(*[T[sl] for T in self.T], *[u[sl] for u in us],
-                             self.W[sl], self.x[sl], self.n[sl], self.h[sl]))
+            args = [a[sl] for a in (*self.T, *us, self.W, self.x, self.n, self.h)]
+            outs.append(kern(*[_pad(a, self.chunk) for a in args]))
         return [np.concatenate([np.asarray(o[i]) for o in outs])[:self.nel] for i in range(len(outs[0]))]
 
 
@@ -310,8 +317,10 @@ class Assembler:
     def _quadratic(self, t, idx):
         """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""
         if id(t) not in self._quadratics:
-            E0, g0, data = self._assemble(t, idx, np.zeros(self.ndofs))
-            self._quadratics[id(t)] = (E0, g0, data, self.matrix(data))
+            e, g, H = t.quadratic_parts()
+            g0 = np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
+            data = np.bincount(idx, weights=H.ravel(), minlength=self.nnz)
+            self._quadratics[id(t)] = (float(e.sum()), g0, data, self.matrix(data))
         return self._quadratics[id(t)]
 
     def energy(self, x, terms=None):

@@ -58,6 +58,14 @@ def _gbasis_with_hessian(self, mapping, X, i, tind=None):
     return (DiscreteField(value=np.asarray(field), grad=field.grad, hess=hess),)
 
 
+def has_zero_hessian(element):
+    """True for wrapped elements whose reference Hessians vanish (degree one on simplices)."""
+    if not getattr(element, "provides_hessian", False):
+        return False
+    X = np.full((element.dim, 1), 0.25)
+    return not any(reference_hessian(element, X, i).any() for i in range(len(element.doflocs)))
+
+
 _CACHE = {}
 
 

@@ -12,6 +12,7 @@ import numpy as np
 from skfem import CellBasis, FacetBasis
 from skfem.quadrature import get_quadrature
 
+from .elements import has_zero_hessian
 from .jets import ORDERS
 
 
@@ -54,6 +55,11 @@ class Measure:
             self.basis = b
         return b
 
+    def release(self):
+        """Drop the bases built for this measure (terms keep what they need)."""
+        self._bases.clear()
+        self.basis = None
+
     @property
     def weights(self):
         return np.asarray(self.basis.dx)
@@ -72,13 +78,16 @@ class Measure:
 
     def tabulation(self, field, orders):
         """T[e, q, c, k] (components c of the requested orders) and local dofs[e, k]."""
-        b = self.basis_for(field, hessian=2 in orders)
+        zero_hessian = 2 in orders and has_zero_hessian(field.element_with_hessian)
+        b = self.basis_for(field, hessian=2 in orders and not zero_hessian)
         sizes = [int(np.prod(s, dtype=int)) for s in self.shapes(field, orders)]
         starts = np.cumsum([0] + sizes)
-        T = np.empty((b.nelems, self.weights.shape[1], starts[-1], b.Nbfun))
+        T = np.zeros((b.nelems, self.weights.shape[1], starts[-1], b.Nbfun))
         for k in range(b.Nbfun):
             df = b.basis[k][0]
             for o, a, c in zip(orders, starts[:-1], starts[1:]):
+                if o == 2 and zero_hessian:
+                    continue  # degree-one element: exact zeros, no Hessian basis built
                 part = _part(df, o).reshape(c - a, -1, T.shape[1])  # (components, e, q)
                 T[:, :, a:c, k] = np.moveaxis(part, 0, -1)
         return T, np.ascontiguousarray(b.element_dofs.T)

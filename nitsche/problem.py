@@ -56,6 +56,8 @@ class Problem:
                             for c, t in zip(self.constraints, self.constraint_terms)]
         self.assembler = Assembler(self.energy_terms + self.constraint_terms, self.ndofs)
         self._free_block()
+        for m in {id(i.on): i.on for i in self.integrals + self.constraints}.values():
+            m.release()
 
     # -- alpha0 -----------------------------------------------------------------
     def _resolve_alpha0(self):
