@@ -187,7 +187,8 @@ class Term:
         return self._parts
 
     def kernel(self, kind):
-        """The compiled chunk kernel: 'energy', 'full' (energy, gradient, Hessian) or 'values'."""
+        """The compiled chunk kernel: 'energy', 'gradient' (energy, gradient), 'full'
+        (energy, gradient, Hessian) or 'values'."""
         if kind in self._kernels:
             return self._kernels[kind]
         key = (kind, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
@@ -264,6 +265,13 @@ def _build(kind, point_fn, sizes, chunk, nq):
         w = jax.vmap(point_fn)(z, *points(W, x, n, h)).reshape(chunk, nq)
         return (jnp.sum(W * w, axis=1),)
 
+    def gradient(*a):
+        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        z = jets(Ts, us).reshape(chunk * nq, m)
+        w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *points(W, x, n, h))
+        Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
+        return jnp.sum(W * w.reshape(chunk, nq), axis=1), jnp.einsum("eqc,eqck->ek", Wdw, block_T(Ts))
+
     def full(*a):
         Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
@@ -283,7 +291,7 @@ def _build(kind, point_fn, sizes, chunk, nq):
         out = jax.vmap(point_fn)(z, *points(W, x, n, h))
         return tuple(o.reshape(chunk, nq) for o in out)
 
-    return {"energy": energy, "full": full, "values": values}[kind]
+    return {"energy": energy, "gradient": gradient, "full": full, "values": values}[kind]
 
 
 class Assembler:
@@ -350,6 +358,20 @@ class Assembler:
                 e, g, d = self._assemble(t, idx, x)
                 E, grad, data = E + e, grad + g, data + d
         return E, grad, data
+
+    def gradient(self, x):
+        """J(x) and its gradient, without the Hessian."""
+        E, grad = 0.0, np.zeros(self.ndofs)
+        for t, idx in zip(self.terms, self.scatter):
+            if t.is_quadratic:
+                E0, g0, _, K = self._quadratic(t, idx)
+                Kx = K @ x
+                E, grad = E + E0 + g0 @ x + 0.5 * x @ Kx, grad + g0 + Kx
+            else:
+                e, g = t.run("gradient", x)
+                E += float(e.sum())
+                grad += np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
+        return E, grad
 
     def matrix(self, data):
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.ndofs, self.ndofs))

@@ -106,7 +106,7 @@ def _run(case, args, p, out, options):
                 energy=result.energy, active_count=result.active_count,
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
                 seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
-                solver=result.solver, parameters=vars(p), alpha0_limits=limits,
+                solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p), alpha0_limits=limits,
                 constraints=result.constraints, errors=errors)
     extra = getattr(case.module, "report", None)
     if extra:

@@ -5,6 +5,7 @@ from skfem.element import ElementH1
 
 from .elements import with_hessian, provided_orders, own_instance
 from .locate import probes, locate
+from .measures import boundary_facets
 
 
 class Field:
@@ -46,7 +47,7 @@ class Field:
         if fixed is None:
             return np.zeros(0, dtype=np.int64)
         if isinstance(fixed, str) and fixed == "boundary":
-            return np.asarray(self.basis.get_dofs().all(), dtype=np.int64)
+            return np.asarray(self.basis.get_dofs(boundary_facets(self.mesh)).all(), dtype=np.int64)
         if isinstance(fixed, str):
             names = sorted((self.mesh.boundaries or {}).keys())
             if fixed not in names:

@@ -1,11 +1,15 @@
 """Linear solvers for the Newton systems, behind one interface.
 
 `cholmod`: sparse Cholesky (CHOLMOD through scikit-sparse), symbolic analysis
-once per pattern, numeric refactorization per Newton step.  `superlu`: SciPy's
+once per pattern; the numeric factor of one Newton matrix preconditions CG on the
+next ones (they differ only where the active set changed), and a new factorization
+is made only when CG needs too many iterations.  `superlu`: SciPy's
 sparse LU, the fallback when scikit-sparse is not installed.  `amg`: conjugate
 gradients preconditioned by smoothed-aggregation algebraic multigrid (pyamg),
 for large and 3D problems.
 """
+import os
+
 import numpy as np
 import scipy.sparse.linalg as spla
 
@@ -23,16 +27,22 @@ class IndefiniteHessian(RuntimeError):
 
 
 class Cholmod:
-    """Sparse Cholesky: symbolic analysis once, a numeric factorization per changed matrix."""
+    """Sparse Cholesky with factor reuse.
+
+    solve(A, b, rtol): the first matrix is factored (symbolic analysis once); a later
+    matrix is solved by CG preconditioned with the last factor, to the relative
+    residual rtol, when that takes at most `reuse_iterations` iterations (the Newton
+    matrices of J_h differ only on the points whose active state changed, a
+    low-rank change); otherwise, or when CG needed more than half of them, it is
+    factored anew.  rtol=0 asks for a direct solve."""
     name = "cholmod"
 
-    def __init__(self):
+    def __init__(self, reuse_iterations=25):
         self.factor = self.factored = None
+        self.reuse_iterations, self.stale = reuse_iterations, False
+        self.factorizations, self.iterations = 0, []
 
-    def solve(self, A, b):
-        A = A.tocsc()
-        if self.factor is not None and np.array_equal(A.data, self.factored):
-            return self.factor(b)  # same matrix as the last step (active set unchanged)
+    def _factor(self, A):
         try:
             if self.factor is None:
                 self.factor = analyze(A)
@@ -41,13 +51,58 @@ class Cholmod:
             self.factored = A.data.copy()
         except CholmodNotPositiveDefiniteError as e:
             raise IndefiniteHessian(str(e))
+        self.factorizations += 1
+        self.stale = False
+
+    def solve(self, A, b, rtol=0.0):
+        A = A.tocsc()
+        if self.factor is not None and np.array_equal(A.data, self.factored):
+            return self.factor(b)  # same matrix as the factored one
+        if self.factor is not None and rtol > 0 and not self.stale:
+            x, its = pcg(A, b, self.factor, rtol, self.reuse_iterations)
+            if x is not None:
+                self.iterations.append(its)
+                self.stale = its > self.reuse_iterations // 2
+                return x
+        self._factor(A)
         return self.factor(b)
+
+    def stats(self):
+        return dict(factorizations=self.factorizations, cg_iterations=list(self.iterations))
+
+
+def pcg(A, b, M, rtol, maxiter):
+    """Preconditioned conjugate gradients from zero: (x, iterations) once
+    |b - A x| <= rtol |b|, (None, maxiter) if not reached.  A direction of
+    non-positive curvature raises IndefiniteHessian."""
+    x, r = np.zeros_like(b), b.copy()
+    z = M(r)
+    p, rz, stop = z.copy(), r @ z, rtol * np.linalg.norm(b)
+    for it in range(1, maxiter + 1):
+        Ap = A @ p
+        curvature = p @ Ap
+        if not curvature > 0:
+            raise IndefiniteHessian("CG found a direction of non-positive curvature")
+        step = rz / curvature
+        x += step * p
+        r -= step * Ap
+        if np.linalg.norm(r) <= stop:
+            return x, it
+        z = M(r)
+        rz, rz_old = r @ z, rz
+        p = z + (rz / rz_old) * p
+    return None, maxiter
 
 
 class SuperLU:
     name = "superlu"
+    factorizations = 0
 
-    def solve(self, A, b):
+    def stats(self):
+        return dict(factorizations=self.factorizations)
+
+    def solve(self, A, b, rtol=0.0):
+        self.factorizations += 1
         x = spla.splu(A.tocsc()).solve(b)
         if not np.all(np.isfinite(x)):
             raise IndefiniteHessian("singular Newton matrix")
@@ -73,6 +128,9 @@ class AMGCG:
     def prepare(self, problem):
         self.B = near_nullspace(problem)
 
+    def stats(self):
+        return dict(amg_setups=self.setups, cg_iterations=list(self.iterations))
+
     def _build(self, A):
         import pyamg
         B = self.B if self.B is not None and self.B.shape[0] == A.shape[0] else None
@@ -82,12 +140,13 @@ class AMGCG:
 
     def _cg(self, A, b, x0=None, maxiter=None):
         count = [0]
-        x, info = spla.cg(A, b, x0=x0, rtol=self.rtol, maxiter=maxiter or self.maxiter, M=self.M,
+        x, info = spla.cg(A, b, x0=x0, rtol=self.tol, maxiter=maxiter or self.maxiter, M=self.M,
                           callback=lambda xk: count.__setitem__(0, count[0] + 1))
         return x, info, count[0]
 
-    def solve(self, A, b):
+    def solve(self, A, b, rtol=0.0):
         A = A.tocsr()
+        self.tol = max(rtol, self.rtol)  # Newton's forcing term, not below our own rtol
         if self.ml is None or self.ml.levels[0].A.shape != A.shape:
             self._build(A)
             x, info, its = self._cg(A, b)
@@ -133,6 +192,19 @@ def near_nullspace(problem):
             v[off:off + n] = 1.0
             cols.append(v)
     return np.ascontiguousarray(np.array(cols).T[problem.free])
+
+
+def describe():
+    """Which direct solver is used and the BLAS it runs on (from the loaded libraries)."""
+    if not HAVE_CHOLMOD:
+        return "SciPy SuperLU (scikit-sparse not installed)"
+    try:
+        with open("/proc/self/maps") as fh:
+            libs = {line.split()[-1] for line in fh if "blas" in line}
+        blas = "OpenBLAS" if any("openblas" in lib for lib in libs) else "reference BLAS"
+    except OSError:
+        blas = "BLAS unknown"
+    return f"CHOLMOD ({blas}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')})"
 
 
 SOLVERS = {"cholmod": Cholmod, "superlu": SuperLU, "amg": AMGCG}

@@ -10,6 +10,14 @@ from . import assembly
 
 ENERGY_ROUNDOFF = 1e-9  # relative change of J_h below which a full step is judged by the residual
 STAGNATION_STEP = 1e-8  # relative Newton step accepted as converged once the residual stagnates
+FORCING_MAX = 1e-2      # the loosest relative accuracy asked of an iterative linear solve
+
+
+def forcing(residual, rtol):
+    """Relative accuracy of the linear solve at relative residual r (inexact Newton):
+    eta = min(1e-2, max(r, rtol / (10 r))), so that |grad| falls like r^2 and the last
+    step is solved no more accurately than the stopping test needs."""
+    return min(FORCING_MAX, max(residual, 0.1 * rtol / residual))
 
 
 class NotConverged(RuntimeError):
@@ -31,6 +39,7 @@ class Result:
     seconds: float = 0.0
     timings: dict = field(default_factory=dict)
     solver: str = ""
+    solver_stats: dict = field(default_factory=dict)
     constraints: dict = field(default_factory=dict)
     problem: object = None
 
@@ -54,7 +63,9 @@ class Result:
                  f"  active points {self.active_count}, contact measure {self.contact_measure:.6g}, "
                  f"largest violation {self.max_violation:.3e}",
                  "  seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in self.timings.items())
-                 + f", total {self.seconds:.3f}"]
+                 + f", total {self.seconds:.3f}",
+                 "  linear solver: " + ", ".join(f"{k.replace('_', ' ')} {v}"
+                                                 for k, v in self.solver_stats.items())]
         return "\n".join(lines)
 
 
@@ -63,8 +74,9 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
 
     Stops when |grad J_h|_free <= rtol * |grad J_h(x_ref)|_free, x_ref = the
     initial guess with all free dofs zero, or when a full Newton step is below
-    round-off.  Each step solves H dx = -grad on the free dofs and backtracks
-    (Armijo) on J_h.  Never returns silently unconverged: see Result.converged.
+    round-off.  Each step solves H dx = -grad on the free dofs (to the relative
+    accuracy `forcing`: exactly by a fresh factorization, or by CG preconditioned
+    with an earlier one) and backtracks (Armijo) on J_h.  Never returns silently unconverged: see Result.converged.
     """
     t_start = time.perf_counter()
     c0 = assembly.compile_seconds[0]
@@ -103,7 +115,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             break
         t = time.perf_counter()
         try:
-            dx = lin.solve(A, -g)
+            dx = lin.solve(A, -g, rtol=forcing(res / ref, rtol))
         except IndefiniteHessian as e:
             reason = ("the Hessian is not positive definite (alpha0 above the stability limit, "
                       f"or a singular problem): {e}")
@@ -152,6 +164,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     report = problem.constraint_report(x)
     return Result(x=x, converged=converged, reason=reason, iterations=it, residuals=residuals,
                   energy=problem.energy(x), seconds=seconds, timings=timings, solver=lin.name,
+                  solver_stats=lin.stats(),
                   constraints=report, problem=problem,
                   active_count=sum(r["active_count"] for r in report.values()),
                   contact_measure=sum(r["contact_measure"] for r in report.values()

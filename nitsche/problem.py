@@ -116,7 +116,8 @@ class Problem:
         return self.assembler.energy(x)
 
     def gradient(self, x):
-        return self.assembler.evaluate(x)[1]
+        """The gradient of J_h at x (all dofs)."""
+        return self.assembler.gradient(x)[1]
 
     def hessian(self, x):
         """Full (generalized) Hessian of J_h at x, CSR."""

@@ -160,3 +160,31 @@ def test_quadratic_terms_are_recognized():
     q = problem("inequality", "cells", 2)
     assert q.energy_terms[0].is_quadratic and not q.constraint_terms[0].is_quadratic
     assert problem("equality", "facets", 1).constraint_terms[0].is_quadratic
+
+
+def test_factor_reuse_solves_later_newton_steps_by_preconditioned_cg():
+    from nitsche.linalg import HAVE_CHOLMOD
+    if not HAVE_CHOLMOD:
+        pytest.skip("scikit-sparse is not installed")
+    mesh = MeshTri.init_symmetric().refined(5)
+    u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+    obstacle = lambda x: 0.2 - 2 * dot(x - 0.5, x - 0.5)
+    contact = ni.Inequality(lambda u, x: u - obstacle(x), lambda u: -lap(u),
+                            ni.Scaling(0.1, 2), ni.cells(u, intorder=4))
+    p = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)), [contact])
+    reused = p.minimize(solver="cholmod")
+    direct = p.minimize(solver="superlu")
+    assert reused.converged and direct.converged
+    stats = reused.solver_stats
+    assert stats["factorizations"] < reused.iterations and len(stats["cg_iterations"]) >= 1
+    assert reused.active_count == direct.active_count
+    assert np.abs(reused.x - direct.x).max() <= 1e-8 * np.abs(direct.x).max()
+
+
+def test_pcg_reports_negative_curvature():
+    from nitsche.linalg import IndefiniteHessian, pcg
+    A = np.diag([1.0, -1.0])
+    with pytest.raises(IndefiniteHessian):
+        pcg(A, np.array([1.0, 1.0]), lambda r: r, 1e-12, 10)
+    x, its = pcg(np.diag([1.0, 2.0]), np.array([1.0, 1.0]), lambda r: r, 1e-12, 10)
+    assert np.allclose(x, [1.0, 0.5]) and its <= 2
