@@ -97,7 +97,7 @@ class Term:
             T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
             # jet components that vanish identically (e.g. P1 Hessians) are left out of the
             # differentiation and enter the density as exact zeros
-            kept = np.array([c for c in range(T.shape[2]) if T[:, :, c].any()], dtype=int)
+            kept = np.flatnonzero(T.any(axis=(0, 1, 3)))
             if kept.size == 0:
                 kept = np.arange(1)
             self.T.append(T if kept.size == T.shape[2] else np.ascontiguousarray(T[:, :, kept]))
@@ -151,6 +151,11 @@ class Term:
         """(jet components kept, local dofs) of each field."""
         return [T.shape[2:] for T in self.T]
 
+    @property
+    def shared(self):
+        """Per field: the tabulation is the same on every element (stored once)."""
+        return tuple(T.shape[0] == 1 for T in self.T)
+
     def _point_fn(self):
         layout, pointwise, kept = self.layout, self.pointwise, self.kept
         offsets = np.cumsum([0] + [m for m, _ in self.sizes])
@@ -192,11 +197,12 @@ class Term:
         if kind in self._kernels:
             return self._kernels[kind]
         key = (kind, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
-               tuple(T.shape[1:] for T in self.T),
+               tuple(T.shape[1:] for T in self.T), self.shared,
                self.dim, self.has_normal)
         if key not in _COMPILED:
             fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq)
-            args = [jax.ShapeDtypeStruct((self.chunk,) + T.shape[1:], jnp.float64) for T in self.T]
+            args = [jax.ShapeDtypeStruct((1 if shared else self.chunk,) + T.shape[1:], jnp.float64)
+                    for T, shared in zip(self.T, self.shared)]
             args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
             args += [jax.ShapeDtypeStruct((self.chunk,) + a.shape[1:], jnp.float64)
                      for a in (self.W, self.x, self.n, self.h)]
@@ -213,8 +219,9 @@ class Term:
         outs = []
         for s in range(0, self.nel, self.chunk):
             sl = slice(s, s + self.chunk)
-            args = [a[sl] for a in (*self.T, *us, self.W, self.x, self.n, self.h)]
-            outs.append(kern(*[_pad(a, self.chunk) for a in args]))
+            Ts = [T if shared else _pad(T[sl], self.chunk) for T, shared in zip(self.T, self.shared)]
+            rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h)]
+            outs.append(kern(*Ts, *rest))
         return [np.concatenate([np.asarray(o[i]) for o in outs])[:self.nel] for i in range(len(outs[0]))]
 
 
@@ -244,20 +251,25 @@ def _build(kind, point_fn, sizes, chunk, nq):
     m = sum(mf for mf, _ in sizes)
     nf = len(sizes)
 
+    offsets = np.cumsum([0] + [mf for mf, _ in sizes])
+
     def jets(Ts, us):
         return jnp.concatenate([jnp.einsum("eqck,ek->eqc", T, u) for T, u in zip(Ts, us)], axis=-1)
 
     def points(W, x, n, h):
         return (x.reshape(chunk * nq, -1), n.reshape(chunk * nq, -1), jnp.repeat(h, nq))
 
-    def block_T(Ts):
-        if nf == 1:
-            return Ts[0]
-        blocks = []
-        for i, T in enumerate(Ts):
-            row = [T if j == i else jnp.zeros(T.shape[:3] + (Ts[j].shape[-1],)) for j in range(nf)]
-            blocks.append(jnp.concatenate(row, axis=-1))
-        return jnp.concatenate(blocks, axis=2)
+    def contract_gradient(Ts, Wdw):
+        """grad_e = sum_q W T^T dw/dz, field by field."""
+        return jnp.concatenate([jnp.einsum("eqc,eqck->ek", Wdw[..., a:b], T)
+                                for T, a, b in zip(Ts, offsets[:-1], offsets[1:])], axis=1)
+
+    def contract_hessian(Ts, Wd2w):
+        """hess_e = sum_q W T^T d2w/dz2 T, one block per pair of fields."""
+        rows = [jnp.concatenate([jnp.einsum("eqck,eqcd,eqdl->ekl", Ti, Wd2w[:, :, a:b, c:d], Tj)
+                                 for Tj, c, d in zip(Ts, offsets[:-1], offsets[1:])], axis=2)
+                for Ti, a, b in zip(Ts, offsets[:-1], offsets[1:])]
+        return jnp.concatenate(rows, axis=1)
 
     def energy(*a):
         Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
@@ -270,7 +282,7 @@ def _build(kind, point_fn, sizes, chunk, nq):
         z = jets(Ts, us).reshape(chunk * nq, m)
         w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *points(W, x, n, h))
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
-        return jnp.sum(W * w.reshape(chunk, nq), axis=1), jnp.einsum("eqc,eqck->ek", Wdw, block_T(Ts))
+        return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw)
 
     def full(*a):
         Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
@@ -278,12 +290,10 @@ def _build(kind, point_fn, sizes, chunk, nq):
         px = points(W, x, n, h)
         w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *px)
         d2w = jax.vmap(jax.hessian(point_fn))(z, *px)
-        T = block_T(Ts)
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
         Wd2w = W[..., None, None] * d2w.reshape(chunk, nq, m, m)
-        g = jnp.einsum("eqc,eqck->ek", Wdw, T)
-        H = jnp.einsum("eqck,eqcd,eqdl->ekl", T, Wd2w, T)
-        return jnp.sum(W * w.reshape(chunk, nq), axis=1), g, H
+        return (jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw),
+                contract_hessian(Ts, Wd2w))
 
     def values(*a):
         Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]

@@ -82,7 +82,8 @@ def pcg(A, b, M, rtol, maxiter):
         Ap = A @ p
         curvature = p @ Ap
         if not curvature > 0:
-            raise IndefiniteHessian("CG found a direction of non-positive curvature")
+            raise IndefiniteHessian("CG preconditioned by the previous factor found a direction "
+                                    "of non-positive curvature")
         step = rz / curvature
         x += step * p
         r -= step * Ap

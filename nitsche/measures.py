@@ -8,6 +8,8 @@ and for each field the tabulation of its basis functions and local dofs.
 The mesh size is the cell diameter (largest distance between two vertices);
 for a boundary facet it is the diameter of the cell that owns the facet.
 """
+import weakref
+
 import numpy as np
 from skfem import CellBasis, FacetBasis
 from skfem.quadrature import get_quadrature
@@ -16,12 +18,18 @@ from .elements import has_zero_hessian
 from .jets import ORDERS
 
 
+_DIAMETERS = {}  # id(mesh) -> diameters, dropped with the mesh
+
+
 def cell_diameters(mesh):
-    """Largest vertex-to-vertex distance of every cell, shape (nelems,)."""
-    p = mesh.p[:, mesh.t]  # (dim, nverts, nelems)
-    nv = p.shape[1]
-    return np.max([np.linalg.norm(p[:, i] - p[:, j], axis=0)
-                   for i in range(nv) for j in range(i + 1, nv)], axis=0)
+    """Largest vertex-to-vertex distance of every cell, shape (nelems,) (once per mesh)."""
+    if id(mesh) not in _DIAMETERS:
+        p = mesh.p[:, mesh.t]  # (dim, nverts, nelems)
+        nv = p.shape[1]
+        _DIAMETERS[id(mesh)] = np.max([np.sqrt(np.sum((p[:, i] - p[:, j]) ** 2, axis=0))
+                                       for i in range(nv) for j in range(i + 1, nv)], axis=0)
+        weakref.finalize(mesh, _DIAMETERS.pop, id(mesh), None)
+    return _DIAMETERS[id(mesh)]
 
 
 def boundary_facets(mesh):
@@ -83,19 +91,23 @@ class Measure:
         return self.basis.nelems
 
     def tabulation(self, field, orders):
-        """T[e, q, c, k] (components c of the requested orders) and local dofs[e, k]."""
+        """T[e, q, c, k] (components c of the requested orders) and local dofs[e, k].
+        T has a single row e when it is the same on every element (e.g. the values of
+        Lagrange basis functions at the cells' reference points)."""
         zero_hessian = 2 in orders and has_zero_hessian(field.element_with_hessian)
         b = self.basis_for(field, hessian=2 in orders and not zero_hessian)
         sizes = [int(np.prod(s, dtype=int)) for s in self.shapes(field, orders)]
         starts = np.cumsum([0] + sizes)
-        T = np.zeros((b.nelems, self.weights.shape[1], starts[-1], b.Nbfun))
-        for k in range(b.Nbfun):
-            df = b.basis[k][0]
-            for o, a, c in zip(orders, starts[:-1], starts[1:]):
-                if o == 2 and zero_hessian:
-                    continue  # degree-one element: exact zeros, no Hessian basis built
-                part = _part(df, o).reshape(c - a, -1, T.shape[1])  # (components, e, q)
-                T[:, :, a:c, k] = np.moveaxis(part, 0, -1)
+        nq = self.weights.shape[1]
+        parts = [[None if o == 2 and zero_hessian  # degree one: exact zeros, no Hessian basis
+                  else _part(b.basis[k][0], o).reshape(c - a, -1, nq)  # (components, e, q)
+                  for o, a, c in zip(orders, starts[:-1], starts[1:])] for k in range(b.Nbfun)]
+        shared = all(p is None or (p == p[:, :1]).all() for row in parts for p in row)
+        T = np.zeros((1 if shared else b.nelems, nq, starts[-1], b.Nbfun))
+        for k, row in enumerate(parts):
+            for p, a, c in zip(row, starts[:-1], starts[1:]):
+                if p is not None:
+                    T[:, :, a:c, k] = np.moveaxis(p[:, :T.shape[0]], 0, -1)
         return T, np.ascontiguousarray(b.element_dofs.T)
 
     def shapes(self, field, orders):

@@ -86,10 +86,11 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     lin = make_solver(solver, free.size, problem.dim)
     if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
         lin.prepare(problem)
-    E0 = problem.energy(x)
-    if not np.isfinite(E0):
-        raise ValueError(f"the energy J_h is not finite at the initial guess (J_h = {E0}); "
-                         "check the densities (log, sqrt, division) and the initial guess x0")
+    E0, g0 = problem.assembler.gradient(x)
+    if not (np.isfinite(E0) and np.all(np.isfinite(g0))):
+        raise ValueError(f"J_h or its gradient is not finite at the initial guess (J_h = {E0}): "
+                         f"{problem.non_finite(x)}; check the densities (log, sqrt, division) "
+                         "and the initial guess x0")
     x_ref = problem.initial(np.zeros(problem.ndofs))
     x_ref[free] = 0.0
     ref = np.linalg.norm(problem.gradient(x_ref)[free])

@@ -5,7 +5,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .assembly import Assembler, Term
-from .functional import Integral
+from .functional import RESERVED, Integral
 from .measures import cells
 
 
@@ -46,6 +46,7 @@ class Problem:
         cnames = [c.name for c in self.constraints]
         if len(set(cnames)) != len(cnames):
             raise ValueError(f"constraint names must be unique, got {cnames}: pass name=...")
+        self._check_arguments()
         self.energy_terms = [Term(i.pointwise(), i.names, i.on, self.fields, self.offsets,
                                   "the energy density") for i in self.integrals]
         self.alpha0_limits = dict(alpha0_limits or {})
@@ -58,6 +59,16 @@ class Problem:
         self._free_block()
         for m in {id(i.on): i.on for i in self.integrals + self.constraints}.values():
             m.release()
+
+    def _check_arguments(self):
+        """Every argument of a constraint's gap and multiplier names a field or x, n, h."""
+        for c in self.constraints:
+            for part, names in (("gap", c.gap_names), ("multiplier", c.multiplier_names)):
+                unknown = [k for k in names if k not in self.by_name and k not in RESERVED]
+                if unknown:
+                    raise ValueError(f"the {part} of constraint '{c.name}': unknown argument(s) "
+                                     f"{unknown}; a density takes fields {sorted(self.by_name)} "
+                                     "and x (point), n (normal), h (mesh size)")
 
     # -- alpha0 -----------------------------------------------------------------
     def _resolve_alpha0(self):
@@ -87,7 +98,7 @@ class Problem:
         for c in constraints:
             if c.multiplier is None:
                 continue
-            term = Term(c.multiplier_square(), c.names, c.on, self.fields, self.offsets,
+            term = Term(c.multiplier_square(), c.multiplier_names, c.on, self.fields, self.offsets,
                         f"the multiplier of constraint '{c.name}'")
             B = Assembler([term], self.ndofs).hessian(x)[self.free][:, self.free]
             mu = largest_generalized_eigenvalue(B, K)
@@ -165,6 +176,17 @@ class Problem:
             out[c.name] = dict(g=g, lam=lam, alpha=alpha, multiplier=lam_n,
                                W=t.W[:t.nel], x=t.x[:t.nel], active=s >= 0 if c.inequality else None)
         return out
+
+    def non_finite(self, x):
+        """Which ingredient is not finite at x: the energy, or a constraint's gap g,
+        multiplier lambda or scaling alpha (a sentence for error messages)."""
+        bad = [f"the energy density ({t.label})" for t in self.energy_terms
+               if not np.all(np.isfinite(t.run("gradient", x)[1]))]
+        for c, t in zip(self.constraints, self.value_terms):
+            for what, v in zip(("gap g", "multiplier lambda", "scaling alpha"), t.run("values", x)):
+                if not np.all(np.isfinite(v)):
+                    bad.append(f"the {what} of constraint '{c.name}'")
+        return "not finite: " + ", ".join(bad) if bad else "no single ingredient is non-finite"
 
     def constraint_report(self, x):
         rep = {}
