@@ -80,14 +80,18 @@ class Case:
         return getattr(self.module, "RATE", {})
 
 
+TRUE, FALSE = ("true", "1"), ("false", "0")  # spellings of a boolean parameter, any case
+
+
 def _parse(name, text, default):
     if not isinstance(text, str):
         return text
+    if isinstance(default, bool):
+        if text.lower() not in TRUE + FALSE:
+            raise ParameterError(f"parameter {name}={text!r}: expected true or false "
+                                 f"(accepted: {', '.join(TRUE + FALSE)}; any case)")
+        return text.lower() in TRUE
     try:
-        if isinstance(default, bool):
-            if text.lower() not in ("true", "false", "1", "0"):
-                raise ValueError
-            return text.lower() in ("true", "1")
         if isinstance(default, int):
             return int(text)
         if isinstance(default, float) or default == "auto":
@@ -99,7 +103,7 @@ def _parse(name, text, default):
             return value
         return text
     except ValueError:
-        kind = "an integer" if isinstance(default, int) and not isinstance(default, bool) else \
+        kind = "an integer" if isinstance(default, int) else \
             "a finite number" + (" or 'auto'" if default == "auto" else "")
         raise ParameterError(f"parameter {name}={text!r}: expected {kind}")
 

@@ -3,6 +3,7 @@ import argparse
 import os
 import sys
 import time
+import warnings
 
 from . import cases as registry
 from .case import ParameterError, parse_assignments
@@ -44,8 +45,19 @@ def parser():
     return p
 
 
+def show_warning(message, category, filename, lineno, file=None, line=None):
+    """A warning (e.g. nitsche.StabilityWarning) as one line, without the Python source."""
+    print(f"warning: {message}", file=sys.stderr)
+
+
 def main(argv=None):
     args = parser().parse_args(argv)
+    with warnings.catch_warnings():
+        warnings.showwarning = show_warning
+        return _command(args)
+
+
+def _command(args):
     try:
         if args.command == "list":
             for name, case in registry.all_cases().items():

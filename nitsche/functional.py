@@ -89,9 +89,10 @@ class Constraint:
         self.gap, self.multiplier, self.scaling, self.on = gap, multiplier, scaling, on
         self.inequality = bool(inequality)
         self.name = name or ("contact" if inequality else "equality")
-        self.names = tuple(dict.fromkeys(
-            argument_names(gap, "the gap g") +
-            (argument_names(multiplier, "the multiplier") if multiplier is not None else ())))
+        self.gap_names = argument_names(gap, "the gap g")
+        self.multiplier_names = argument_names(multiplier, "the multiplier") \
+            if multiplier is not None else ()
+        self.names = tuple(dict.fromkeys(self.gap_names + self.multiplier_names))
 
     @property
     def kind(self):
@@ -101,8 +102,7 @@ class Constraint:
 
     def _parts(self):
         gap, multiplier, scaling = self.gap, self.multiplier, self.scaling
-        gn = argument_names(gap, "g")
-        mn = argument_names(multiplier, "lambda") if multiplier is not None else ()
+        gn, mn = self.gap_names, self.multiplier_names
         alpha0, k, stiffness = scaling.alpha0, scaling.h_power, scaling.stiffness
 
         def parts(args):
@@ -127,8 +127,7 @@ class Constraint:
 
     def multiplier_square(self):
         """1/2 (alpha/alpha0) lambda^2: its Hessian is the B of the stability eigenproblem."""
-        multiplier, scaling = self.multiplier, self.scaling
-        mn = argument_names(multiplier, "lambda")
+        multiplier, scaling, mn = self.multiplier, self.scaling, self.multiplier_names
         k, stiffness = scaling.h_power, scaling.stiffness
 
         def density(args):

@@ -1,6 +1,7 @@
 """Results on disk: result.json / study.json (a public contract: keys are only added)
 and VTK files for ParaView."""
 import json
+import math
 import os
 
 from skfem.io.meshio import to_meshio
@@ -9,18 +10,24 @@ from skfem import ElementVector
 
 
 def write_json(path, data):
+    """Strict JSON (no NaN or Infinity): non-finite numbers are written as null."""
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
     with open(path, "w") as fh:
-        json.dump(data, fh, indent=2, default=_plain)
+        json.dump(_plain(data), fh, indent=2, allow_nan=False)
     return path
 
 
 def _plain(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    raise TypeError(type(o))
+    """o with NumPy values as Python ones and non-finite floats as None."""
+    if isinstance(o, (np.ndarray, np.generic)):
+        o = o.tolist()
+    if isinstance(o, dict):
+        return {k: _plain(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_plain(v) for v in o]
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
 
 
 def vertex_values(field, u):

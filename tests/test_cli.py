@@ -43,6 +43,32 @@ def test_study_writes_study_json(tmp_path, capsys):
     assert "[3/3]" in capsys.readouterr().err  # progress display
 
 
+def strict_json(path):
+    """Parse with a parser that rejects NaN and Infinity."""
+    def reject(constant):
+        raise ValueError(f"not strict JSON: {constant}")
+    return json.loads(path.read_text(), parse_constant=reject)
+
+
+def test_json_is_strict_and_non_finite_numbers_are_null(tmp_path, capsys):
+    out = tmp_path / "o"
+    # P1: the multiplier f1 + mu1 lap_h u1 does not depend on u1, so its alpha0 limit is infinite
+    assert main(["run", "two-membrane", "--level", "0", "--degree", "1", "--out", str(out)]) == 0
+    data = strict_json(out / "result.json")
+    assert RESULT_KEYS <= set(data)
+    assert data["alpha0_limits"] == {"contact": None}
+    assert main(["study", "two-membrane", "--levels", "2", "--degree", "1", "--out", str(out)]) == 0
+    assert len(strict_json(out / "study.json")["levels"]) == 2
+
+
+def test_json_writer_converts_numpy_and_non_finite_values(tmp_path):
+    import numpy as np
+    from nitsche.io import write_json
+    write_json(str(tmp_path / "x.json"), dict(a=np.float64(np.nan), b=np.array([1.0, -np.inf]),
+                                              c=(np.int64(3), float("inf")), d={"e": 2.5}))
+    assert strict_json(tmp_path / "x.json") == dict(a=None, b=[1.0, None], c=[3, None], d={"e": 2.5})
+
+
 @pytest.mark.parametrize("args,message", [
     (["--set", "mu=1"], "valid names: T, f, alpha0"),
     (["--set", "T=abc"], "expected a finite number"),
@@ -53,6 +79,31 @@ def test_study_writes_study_json(tmp_path, capsys):
 def test_bad_parameters_are_clear_errors(tmp_path, capsys, args, message):
     assert main(["run", "obstacle", "--level", "0", "--out", str(tmp_path)] + args) == 2
     assert message in capsys.readouterr().err
+
+
+def test_bad_boolean_parameter_lists_the_spellings(tmp_path, capsys):
+    assert main(["run", "two-membrane", "--level", "0", "--out", str(tmp_path),
+                 "--set", "compare=maybe"]) == 2
+    err = capsys.readouterr().err
+    assert "compare='maybe': expected true or false (accepted: true, 1, false, 0" in err
+    assert "number" not in err
+
+
+@pytest.mark.parametrize("text,value", [("TRUE", True), ("1", True), ("False", False), ("0", False)])
+def test_boolean_parameter_spellings(text, value):
+    from nitsche.cases import get
+    assert get("two-membrane").parameters({"compare": text}).compare is value
+
+
+def test_warnings_are_one_short_line(tmp_path, capsys):
+    # P2 cell Laplacian: alpha0 = 0.1 is ten times the stability limit (about 0.0107)
+    main(["run", "two-membrane", "--level", "0", "--degree", "2", "--no-nested", "--out",
+          str(tmp_path), "--set", "alpha0=0.1"])
+    err = capsys.readouterr().err.splitlines()
+    warned = [line for line in err if "exceeds the stability limit" in line]
+    assert warned and all(line.startswith("warning: constraint 'contact': alpha0 = 0.1 exceeds")
+                          for line in warned)
+    assert not any("StabilityWarning" in line or "warnings.warn" in line for line in err), err
 
 
 def test_unknown_case(capsys):

@@ -83,6 +83,19 @@ def test_unknown_field_name_is_a_clear_error():
         ni.Problem([u], lambda w: dot(grad(w), grad(w)))
 
 
+@pytest.mark.parametrize("gap,lam,part", [
+    (lambda w: w, lambda u: -lap(u), "gap"),
+    (lambda u: u, lambda w: -lap(w), "multiplier"),
+])
+def test_unknown_name_in_a_constraint_names_gap_or_multiplier(gap, lam, part):
+    mesh = MeshTri().refined(2)
+    u = ni.Field("u", mesh, ElementTriP2(), fixed="boundary")
+    c = ni.Inequality(gap, lam, ni.Scaling(0.005, 2), ni.cells(u), name="support")
+    with pytest.raises(ValueError, match=rf"^the {part} of constraint 'support': "
+                                         r"unknown argument\(s\) \['w'\]; .*fields \['u'\]"):
+        ni.Problem([u], lambda u: dot(grad(u), grad(u)), [c])
+
+
 def test_missing_derivative_is_a_clear_error():
     mesh = MeshTri().refined(2)
     u = ni.Field("u", mesh, ElementTriMorley(), fixed="boundary")

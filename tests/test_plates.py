@@ -256,8 +256,10 @@ def test_plate_plate_study_rate_is_linear():
 def test_plate_unilateral_study_rate_and_lifted_corners():
     case = Case(plate_unilateral)
     rows = run_study(case, 6, 3, case.parameters(), progress=False)
-    d = [r["difference"] for r in rows[-5:]]
-    assert np.log2(d[0] / d[-1]) / 4 >= 1.7  # mean rate over the finest four steps
+    # mean rate over the finest four levels: the mean of the step rates r_k = log2(E_(k-1) / E_k)
+    # of levels k = 2..5, i.e. log2(E_1 / E_5) / 4 (docs/plates.md; measured 1.74)
+    rates = [r["rate"] for r in rows[-4:]]
+    assert np.mean(rates) >= 1.7, rates
     lifted = [r["lifted_length"] for r in rows[-3:]]
     assert np.ptp(lifted) < 0.03 and all(0.45 < s < 0.6 for s in lifted)
     assert all(abs(r["reaction_balance"] - 1) < 1e-8 for r in rows)
