@@ -369,10 +369,12 @@ class Assembler:
                 E, grad, data = E + e, grad + g, data + d
         return E, grad, data
 
-    def gradient(self, x):
+    def gradient(self, x, terms=None):
         """J(x) and its gradient, without the Hessian."""
         E, grad = 0.0, np.zeros(self.ndofs)
         for t, idx in zip(self.terms, self.scatter):
+            if terms is not None and t not in terms:
+                continue
             if t.is_quadratic:
                 E0, g0, _, K = self._quadratic(t, idx)
                 Kx = K @ x

@@ -105,13 +105,19 @@ def _run(case, args, p, out, options):
         result = problem.minimize(**options)
         its = [result.iterations]
     seconds = time.perf_counter() - t0
-    print(f"{case.name}: level {args.level}, degree {args.degree}, {problem.ndofs} dofs "
+    reached = args.level - (args.level + 1 - len(its) if args.nested else 0)
+    if reached < args.level:
+        print(f"nitsche: Newton failed at level {reached}: levels {reached + 1}..{args.level} "
+              "were not solved; the report and the files are those of level "
+              f"{reached}", file=sys.stderr)
+    print(f"{case.name}: level {reached}, degree {args.degree}, {problem.ndofs} dofs "
           f"({problem.free.size} unknowns); Newton iterations per level {its}")
     print(result.report())
     errors = case.errors(problem, result, p)
     for k, v in errors.items():
         print(f"  error {k}: {v:.6e}")
-    data = dict(case=case.name, level=args.level, degree=args.degree, dofs=int(problem.ndofs),
+    data = dict(case=case.name, level=args.level, level_reached=reached, degree=args.degree,
+                dofs=int(problem.ndofs),
                 unknowns=int(problem.free.size), converged=result.converged, reason=result.reason,
                 newton_iterations=result.iterations, residuals=result.residuals,
                 nested_iterations=its,
@@ -126,7 +132,7 @@ def _run(case, args, p, out, options):
     write_json(os.path.join(out, "result.json"), data)
     paths = write_vtu(os.path.join(out, "solution"), problem, result.x)
     figs = [plot_solution(problem, result, os.path.join(out, "solution.png"),
-                          f"{case.name}, level {args.level}, P{args.degree}")]
+                          f"{case.name}, level {reached}, P{args.degree}")]
     hook = getattr(case.module, "figures", None)
     if hook:
         figs += hook(problem, result, p, out)
@@ -142,7 +148,7 @@ def _study(case, args, p, out, options):
     try:
         rows = run_study(case, args.levels, args.degree, p, start=args.start, newton_options=options)
     except NotConverged as e:
-        print(f"nitsche: study stopped: {e}", file=sys.stderr)
+        print(f"\nnitsche: study stopped: {e}", file=sys.stderr)
         return 1
     print(table(rows))
     rate = case.rate.get(args.degree)

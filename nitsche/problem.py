@@ -181,7 +181,7 @@ class Problem:
         """Which ingredient is not finite at x: the energy, or a constraint's gap g,
         multiplier lambda or scaling alpha (a sentence for error messages)."""
         bad = [f"the energy density ({t.label})" for t in self.energy_terms
-               if not np.all(np.isfinite(t.run("gradient", x)[1]))]
+               if not np.all(np.isfinite(self.assembler.gradient(x, [t])[1]))]
         for c, t in zip(self.constraints, self.value_terms):
             for what, v in zip(("gap g", "multiplier lambda", "scaling alpha"), t.run("values", x)):
                 if not np.all(np.isfinite(v)):

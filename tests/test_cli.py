@@ -115,3 +115,12 @@ def test_case_help_lists_parameters(capsys):
     assert main(["run", "obstacle", "--help"]) == 0
     out = capsys.readouterr().out
     assert "alpha0" in out and "auto" in out and "membrane tension" in out
+
+
+def test_run_that_fails_on_a_coarse_level_says_which(tmp_path, capsys):
+    out = tmp_path / "f"
+    assert main(["run", "signorini", "--level", "2", "--maxiter", "1", "--out", str(out)]) == 1
+    data = json.loads((out / "result.json").read_text())
+    assert data["level"] == 2 and data["level_reached"] == 0 and not data["converged"]
+    err = capsys.readouterr().err
+    assert "Newton failed at level 0" in err

@@ -201,3 +201,13 @@ def test_pcg_reports_negative_curvature():
         pcg(A, np.array([1.0, 1.0]), lambda r: r, 1e-12, 10)
     x, its = pcg(np.diag([1.0, 2.0]), np.array([1.0, 1.0]), lambda r: r, 1e-12, 10)
     assert np.allclose(x, [1.0, 0.5]) and its <= 2
+
+
+def test_non_finite_gap_at_the_initial_guess_names_the_gap():
+    mesh = MeshTri().refined(2)
+    u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+    contact = ni.Inequality(lambda u: jnp.sqrt(u.value - 1.0), lambda u: -lap(u),
+                            ni.Scaling(0.1, 2), ni.cells(u), name="support")
+    p = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - u, [contact])
+    with pytest.raises(ValueError, match="gap g of constraint 'support'"):
+        p.minimize()
