@@ -34,16 +34,21 @@ the pairwise ratios of total seconds within one repetition.
 Results: benchmarks/results/peers.json, scaling.json, scaling.png.
 Peers are optional (`pip install -e .[bench]`); a peer that is not installed is skipped.
 """
-import argparse
-import json
 import os
-import statistics
-import subprocess
-import sys
-import tempfile
-import time
 
-import numpy as np
+# every code gets the BLAS setting the library uses (CHOLMOD's OpenBLAS single-threaded:
+# threaded triangular solves were 6x slower on 2 cores); set before any BLAS is loaded
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
@@ -197,7 +202,7 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
     t["total"] = time.perf_counter() - t_all
     parts = prob.split(res.x)
     names = [f.name for f in prob.fields]
-    return dict(unknowns=int(prob.free.size), iterations=sum(its), iterations_per_level=its,
+    return dict(unknowns=int(prob.free.size), iterations=sum(its), iterations_per_level=its, converged=True,
                 finest_iterations=its[-1], times=t, own_energy=res.energy,
                 own_active=res.active_count, fields=[np.asarray(parts[n]).tolist() for n in names],
                 levels=levels, mesh=prob.fields[0].mesh)
@@ -489,7 +494,7 @@ def fmt(v, spec):
 
 def table(rows):
     head = (f"{'problem':<13}{'code':<9}{'unknowns':>9}{'its':>7}{'assembly':>9}{'solve':>8}{'compile':>8}"
-            f"{'total':>8}{'peak MB':>9}{'energy':>20}{'active':>9}{'ratio':>8}")
+            f"{'total':>8}{'peak MB':>9}{'energy':>20}{'active':>9}{'ratio':>8}  converged")
     lines = [head]
     for r in rows:
         if r.get("skipped"):
@@ -499,7 +504,8 @@ def table(rows):
         lines.append(f"{r['problem']:<13}{r['code']:<9}{r['unknowns']:>9d}{fmt(r.get('iterations_str'), '>7')}"
                      f"{t['assembly']:>9.2f}{t['solve']:>8.2f}{t['compile']:>8.2f}{t['total']:>8.2f}"
                      f"{r['peak_mb']:>9.0f}{fmt(r.get('energy'), '>20.12g'):>20}{fmt(r.get('active'), '>9d'):>9}"
-                     f"{fmt(r.get('ratio'), '>8.2f'):>8}")
+                     f"{fmt(r.get('ratio'), '>8.2f'):>8}  "
+                     f"{'-' if r.get('converged') is None else ('yes' if r['converged'] else 'NO')}")
     return "\n".join(lines)
 
 
