@@ -30,7 +30,7 @@ the pairwise ratios of total seconds within one repetition.
 
     python benchmarks/peers.py                       # the table (docs/performance.md)
     python benchmarks/peers.py --levels 3 4 --repeat 3 --peers skfem
-    python benchmarks/peers.py --scaling             # ours to ~1M unknowns, log-log plot
+    python benchmarks/peers.py --scaling             # ours to ~1M unknowns (2D), 549k (3D), log-log plot
 Results: benchmarks/results/peers.json, scaling.json, scaling.png.
 Peers are optional (`pip install -e .[bench]`); a peer that is not installed is skipped.
 """
@@ -57,6 +57,7 @@ CODES = ("ours", "skfem", "ngsolve", "linear")
 INTORDER = 4          # the quadrature order the cases use for P1 cell constraints (2p + 2)
 RTOL = 1e-10          # the same relative residual test for every code
 MAXITER = 200         # full-step Newton from zero may need many iterations
+N0_3D = 7             # membrane-solid scaling: n = 7 * 2^level cells per side (549k unknowns at 3)
 TM = dict(mu1=1.0, mu2=2.0, f1=1.0, f2=-1.0, d=0.05)
 OB = dict(T=1.0, f=0.0)
 R_STAR = 0.6979651482
@@ -174,7 +175,12 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
     from nitsche.cases import get
     t_all = time.perf_counter()
     t = dict(setup=0.0, assembly=0.0, solve=0.0, line_search=0.0, compile=0.0)
-    if mesh_spec is None:
+    if problem == "membrane-solid":  # 3D scaling: the case itself, n = 7 * 2^level
+        case = get(problem)
+        p = case.parameters({"alpha0": str(alpha0), "n0": str(N0_3D)})
+        limits = case.alpha0_limits(1, p)
+        make = [lambda k=k: case.problem(k, 1, p, limits) for k in range(level + 1)]
+    elif mesh_spec is None:
         case = get(problem)
         p = case.parameters({"alpha0": str(alpha0)} | ({"compare": "false"} if problem != "obstacle" else {}))
         t0 = time.perf_counter()
@@ -201,10 +207,10 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
         prev = (prob, res.x)
     t["total"] = time.perf_counter() - t_all
     parts = prob.split(res.x)
-    names = [f.name for f in prob.fields]
+    names = [f.name for f in prob.fields] if problem in PROBLEMS else []  # peers: 2D only
     return dict(unknowns=int(prob.free.size), iterations=sum(its), iterations_per_level=its, converged=True,
                 finest_iterations=its[-1], times=t, own_energy=res.energy,
-                own_active=res.active_count, fields=[np.asarray(parts[n]).tolist() for n in names],
+                own_active=res.active_count, fields=[np.asarray(parts[n]).tolist() for n in names] or None,
                 levels=levels, mesh=prob.fields[0].mesh)
 
 
@@ -430,7 +436,7 @@ def worker(args):
     fn = dict(ours=run_ours, skfem=run_skfem, ngsolve=run_ngsolve, linear=run_linear)[code]
     out = fn(problem, level, alpha0, spec) if code == "ours" else fn(problem, level, alpha0)
     mesh = out.pop("mesh")
-    if "fields" in out:
+    if out.get("fields"):
         fields = [np.asarray(u) for u in out.pop("fields")]
         out["energy"], out["active"] = referee(problem, mesh, alpha0, fields)
     out["code"] = code
@@ -589,7 +595,8 @@ def compare(args):
 
 
 def scaling(args):
-    """Ours only, nested chain per size, tensor meshes up to ~1M unknowns."""
+    """Ours only, nested chain per size: 2D tensor meshes up to ~1M unknowns, and the 3D
+    membrane-solid case up to 549k unknowns."""
     chains = dict(obstacle=[8 * 2 ** k for k in range(8)],        # n = 8 .. 1024: 1.05M unknowns
                   **{"two-membrane": [6 * 2 ** k for k in range(8)]})   # n = 6 .. 768: 1.18M
     rows = []
@@ -601,13 +608,15 @@ def scaling(args):
             out = spawn("ours", problem, 0, args.alpha0, 1200, spec=ns[:top + 1])
             out.update(problem=problem, n=ns[top])
             rows.append(out)
-            t = out.get("times", {})
-            print(f"{problem:<13} n={ns[top]:<5} {out.get('unknowns', 0):>9} unknowns  "
-                  f"its/level {out.get('iterations_per_level')}  total {t.get('total', float('nan')):7.2f} s "
-                  f"(setup {t.get('setup', 0):.2f}, assembly {t.get('assembly', 0):.2f}, "
-                  f"solve {t.get('solve', 0):.2f}, line search {t.get('line_search', 0):.2f}, "
-                  f"compile {t.get('compile', 0):.2f})  peak {out.get('peak_mb', 0):.0f} MB  "
-                  f"wall {out.get('wall', 0):.1f} s", flush=True)
+            report(out)
+    if "membrane-solid" in args.problems_3d:
+        for level in range(1, 4):
+            if args.max_n and N0_3D * 2 ** level > args.max_n:
+                break
+            out = spawn("ours", "membrane-solid", level, args.alpha0, 1200)
+            out.update(problem="membrane-solid", n=N0_3D * 2 ** level)
+            rows.append(out)
+            report(out)
     os.makedirs(RESULTS, exist_ok=True)
     with open(os.path.join(RESULTS, "scaling.json"), "w") as fh:
         json.dump(dict(rows=rows, alpha0=args.alpha0, cpu_count=os.cpu_count(),
@@ -615,12 +624,22 @@ def scaling(args):
     plot_scaling(rows)
 
 
+def report(out):
+    t = out.get("times", {})
+    print(f"{out['problem']:<15} n={out['n']:<5} {out.get('unknowns', 0):>9} unknowns  "
+          f"its/level {out.get('iterations_per_level')}  total {t.get('total', float('nan')):7.2f} s "
+          f"(setup {t.get('setup', 0):.2f}, assembly {t.get('assembly', 0):.2f}, "
+          f"solve {t.get('solve', 0):.2f}, line search {t.get('line_search', 0):.2f}, "
+          f"compile {t.get('compile', 0):.2f})  peak {out.get('peak_mb', 0):.0f} MB  "
+          f"wall {out.get('wall', 0):.1f} s", flush=True)
+
+
 def plot_scaling(rows):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.3))
-    for problem, mk in (("obstacle", "o-"), ("two-membrane", "s-")):
+    for problem, mk in (("obstacle", "o-"), ("two-membrane", "s-"), ("membrane-solid", "^-")):
         rr = [r for r in rows if r["problem"] == problem and not r.get("skipped")]
         if not rr:
             continue
@@ -634,7 +653,7 @@ def plot_scaling(rows):
     ax[0].axhline(60, color="r", lw=0.6)
     ax[1].axhline(6, color="r", lw=0.6, label="6 GB")
     ax[0].set_xlabel("unknowns")
-    ax[0].set_ylabel("seconds (nested chain, P1)")
+    ax[0].set_ylabel("seconds (nested chain; 2D P1, 3D Q1/Hex1)")
     ax[1].set_xlabel("unknowns")
     ax[1].set_ylabel("peak memory, GB (ru_maxrss)")
     for a in ax:
@@ -659,6 +678,8 @@ def main():
                     help="skip a peer whose one run is expected to take longer (seconds)")
     ap.add_argument("--scaling", action="store_true")
     ap.add_argument("--max-n", type=int, default=0, help="scaling: largest mesh n (0: all)")
+    ap.add_argument("--problems-3d", nargs="*", default=["membrane-solid"], choices=["membrane-solid"],
+                    help="scaling: 3D problems (none: --problems-3d with no value)")
     ap.add_argument("--worker", nargs="+", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     args = ap.parse_args()
