@@ -234,8 +234,9 @@ def build_ours(problem, mesh, alpha0):
         return ni.Problem([u], lambda u: 0.5 * T * dot(grad(u), grad(u)) - f * u, [contact],
                           alpha0_limits={"contact": np.inf})
     p = TM
-    u1 = ni.Field("u1", mesh, ElementTriP1(), fixed="boundary")
-    u2 = ni.Field("u2", mesh, ElementTriP1(), fixed="boundary")
+    element = ElementTriP1()  # one object: the two fields share their basis
+    u1 = ni.Field("u1", mesh, element, fixed="boundary")
+    u2 = ni.Field("u2", mesh, element, fixed="boundary")
     contact = ni.Inequality(gap=lambda u1, u2: u2 + p["d"] - u1,
                             multiplier=lambda u1: p["f1"] + p["mu1"] * lap(u1),
                             scaling=ni.Scaling(alpha0, h_power=2, stiffness=p["mu1"]),

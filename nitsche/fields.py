@@ -1,4 +1,6 @@
 """Fields: named unknowns, each on its own scikit-fem basis."""
+import weakref
+
 import numpy as np
 from skfem import Basis, ElementVector
 from skfem.element import ElementH1
@@ -6,6 +8,20 @@ from skfem.element import ElementH1
 from .elements import with_hessian, provided_orders, own_instance
 from .locate import probes, locate
 from .measures import boundary_facets
+
+
+# (id(mesh), id(element), intorder) -> basis, while a field holds it (the basis keeps its
+# mesh and element alive, so their ids are not reused meanwhile)
+_BASES = weakref.WeakValueDictionary()
+
+
+def shared_basis(mesh, element, intorder):
+    """One scikit-fem basis per mesh, element object and quadrature order."""
+    key = (id(mesh), id(element), intorder)
+    basis = _BASES.get(key)
+    if basis is None:
+        basis = _BASES[key] = Basis(mesh, element, intorder=intorder)
+    return basis
 
 
 class Field:
@@ -18,6 +34,9 @@ class Field:
     value: the prescribed values, a number or a function of the dof locations
         `x` (shape (dim, n)); Lagrange elements only for functions (for a vector
         Lagrange element the function returns the components, shape (dim, n)).
+
+    Fields given the same element object on the same mesh share one basis (and the
+    measures build one basis for both): pass one instance to save memory and time.
     """
 
     def __init__(self, name, mesh, element, fixed=None, value=0.0, intorder=None):
@@ -30,7 +49,7 @@ class Field:
         self.element = element
         self.element_with_hessian = with_hessian(element)  # used where a density asks for hess
         self.orders = provided_orders(self.element_with_hessian)
-        self.basis = Basis(mesh, element, intorder=intorder)
+        self.basis = shared_basis(mesh, element, intorder)
         self.fixed_dofs = self._fixed_dofs(fixed)
         self.fixed_values = self._fixed_values(value)
 

@@ -57,7 +57,7 @@ class Measure:
         if field.mesh is not self.mesh:
             raise ValueError(f"field '{field.name}' lives on another mesh than this {self.kind} "
                              "measure; integrate it on its own mesh or through an interface")
-        key = (id(field), hessian)
+        key = (id(field.element), hessian)  # fields with one element object share it
         if key not in self._bases:
             self._bases[key] = self._make_basis(field.element_with_hessian if hessian else field.element)
         return self._bases[key]
@@ -130,7 +130,7 @@ class Cells(Measure):
 
     def attach(self, field):
         if field.mesh is self.mesh and self._same_quadrature(field.basis):
-            self._bases[(id(field), False)] = field.basis  # reuse the field's own basis
+            self._bases[(id(field.element), False)] = field.basis  # reuse the field's own basis
         return super().attach(field)
 
     def _same_quadrature(self, basis):

@@ -84,9 +84,9 @@ def build(level, degree, p):
         raise ValueError(f"membrane 1 must be the less stiff one (mu1 = {p.mu1} > mu2 = {p.mu2}); "
                          "the multiplier is taken from it")
     mesh = MeshTri().refined(level + 2)
-    element = ElementTriP1 if degree == 1 else ElementTriP2
-    u1 = ni.Field("u1", mesh, element(), fixed="boundary")
-    u2 = ni.Field("u2", mesh, element(), fixed="boundary")
+    element = ElementTriP1() if degree == 1 else ElementTriP2()  # one object: one basis for both
+    u1 = ni.Field("u1", mesh, element, fixed="boundary")
+    u2 = ni.Field("u2", mesh, element, fixed="boundary")
 
     def energy(u1, u2):
         return (0.5 * p.mu1 * dot(grad(u1), grad(u1)) + 0.5 * p.mu2 * dot(grad(u2), grad(u2))
