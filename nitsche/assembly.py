@@ -156,18 +156,24 @@ class Term:
         """Per field: the tabulation is the same on every element (stored once)."""
         return tuple(T.shape[0] == 1 for T in self.T)
 
-    def _point_fn(self):
+    def _point_fn(self, by_field=False):
+        """The density w(z, x, n, h) of the kept jet components z of all fields (one vector),
+        or, by_field, w(z_1, ..., z_k, x, n, h) of one vector per field."""
         layout, pointwise, kept = self.layout, self.pointwise, self.kept
         offsets = np.cumsum([0] + [m for m, _ in self.sizes])
 
-        def f(z, x, n, h):
+        def of_fields(*a):
+            zs, (x, n, h) = a[:len(layout)], a[len(layout):]
             args = {"x": x, "n": n, "h": h}
-            for (name, parts, provided), off, kf in zip(layout, offsets, kept):
-                full = jnp.zeros(sum(p[3] for p in parts)).at[np.array(kf)].set(z[off:off + len(kf)])
+            for (name, parts, provided), z, kf in zip(layout, zs, kept):
+                full = jnp.zeros(sum(p[3] for p in parts)).at[np.array(kf)].set(z)
                 args[name] = Jet(name, {o: full[s: s + size].reshape(shape)
                                         for o, shape, s, size in parts}, provided)
             return pointwise(args)
-        return f
+
+        def f(z, x, n, h):
+            return of_fields(*[z[a:b] for a, b in zip(offsets[:-1], offsets[1:])], x, n, h)
+        return of_fields if by_field else f
 
     @property
     def is_quadratic(self):
@@ -182,6 +188,26 @@ class Term:
                 _COMPILED[key] = not _depends_on_first_input(jaxpr.jaxpr)
             self._quadratic = _COMPILED[key]
         return self._quadratic
+
+    @property
+    def coupling(self):
+        """coupling[i][j]: whether d2w/dz_i dz_j (fields i, j) can be non-zero, i.e. whether
+        dw/dz_i depends on z_j (found from the computation graph); the element Hessian
+        blocks of uncoupled pairs are exact zeros and not computed."""
+        if not hasattr(self, "_coupling"):
+            key = ("coupling", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
+            if key not in _COMPILED:
+                sizes = [mf for mf, _ in self.sizes]
+                nf = len(sizes)
+                args = [jnp.zeros(mf) for mf in sizes] + [jnp.zeros(self.dim), jnp.zeros(self.dim), 0.1]
+                coupled = []
+                for i in range(nf):
+                    jaxpr = jax.make_jaxpr(jax.grad(self._point_fn(by_field=True), argnums=i))(*args).jaxpr
+                    coupled.append(tuple(any(_dependent_outputs(jaxpr, [k == j for k in range(len(jaxpr.invars))]))
+                                         for j in range(nf)))
+                _COMPILED[key] = tuple(coupled)
+            self._coupling = _COMPILED[key]
+        return self._coupling
 
     def quadratic_parts(self):
         """Energy, element gradients and element Hessians at x = 0 of a quadratic term,
@@ -200,7 +226,8 @@ class Term:
                tuple(T.shape[1:] for T in self.T), self.shared,
                self.dim, self.has_normal)
         if key not in _COMPILED:
-            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq)
+            coupling = self.coupling if kind == "full" else None
+            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq, coupling)
             args = [jax.ShapeDtypeStruct((1 if shared else self.chunk,) + T.shape[1:], jnp.float64)
                     for T, shared in zip(self.T, self.shared)]
             args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
@@ -247,7 +274,7 @@ def _depends_on_first_input(jaxpr):
     return any(_dependent_outputs(jaxpr, [True] + [False] * (len(jaxpr.invars) - 1)))
 
 
-def _build(kind, point_fn, sizes, chunk, nq):
+def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
     m = sum(mf for mf, _ in sizes)
     nf = len(sizes)
 
@@ -264,12 +291,17 @@ def _build(kind, point_fn, sizes, chunk, nq):
         return jnp.concatenate([jnp.einsum("eqc,eqck->ek", Wdw[..., a:b], T)
                                 for T, a, b in zip(Ts, offsets[:-1], offsets[1:])], axis=1)
 
+    def block(i, j, Ts, Wd2w):
+        Ti, Tj = Ts[i], Ts[j]
+        if not coupling[i][j]:  # structurally zero (e.g. two fields of a sum of energies)
+            return jnp.zeros((chunk, Ti.shape[-1], Tj.shape[-1]))
+        return jnp.einsum("eqck,eqcd,eqdl->ekl", Ti,
+                          Wd2w[:, :, offsets[i]:offsets[i + 1], offsets[j]:offsets[j + 1]], Tj)
+
     def contract_hessian(Ts, Wd2w):
-        """hess_e = sum_q W T^T d2w/dz2 T, one block per pair of fields."""
-        rows = [jnp.concatenate([jnp.einsum("eqck,eqcd,eqdl->ekl", Ti, Wd2w[:, :, a:b, c:d], Tj)
-                                 for Tj, c, d in zip(Ts, offsets[:-1], offsets[1:])], axis=2)
-                for Ti, a, b in zip(Ts, offsets[:-1], offsets[1:])]
-        return jnp.concatenate(rows, axis=1)
+        """hess_e = sum_q W T^T d2w/dz2 T, one block per coupled pair of fields."""
+        return jnp.concatenate([jnp.concatenate([block(i, j, Ts, Wd2w) for j in range(nf)], axis=2)
+                                for i in range(nf)], axis=1)
 
     def energy(*a):
         Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
@@ -327,11 +359,6 @@ class Assembler:
                              and np.array_equal(d, t.global_dofs)) for t in terms]
         self._quadratics = {}
 
-    def _assemble(self, t, idx, x):
-        e, g, H = t.run("full", x)
-        return (float(e.sum()), np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs),
-                np.bincount(idx, weights=H.ravel(), minlength=self.nnz))
-
     def _quadratic(self, t, idx):
         """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""
         if id(t) not in self._quadratics:
@@ -353,37 +380,31 @@ class Assembler:
                 E += float(t.run("energy", x)[0].sum())
         return E
 
-    def evaluate(self, x, terms=None):
-        """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian.
-        Quadratic terms are assembled once and then applied as matrices."""
-        E, grad, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
+    def evaluate(self, x, terms=None, hessian=True):
+        """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian (None
+        unless asked).  Quadratic terms are assembled once and then applied as matrices."""
+        E, grad = 0.0, np.zeros(self.ndofs)
+        data = np.zeros(self.nnz) if hessian else None
         for t, idx in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
                 continue
             if t.is_quadratic:
                 E0, g0, d, K = self._quadratic(t, idx)
                 Kx = K @ x
-                E, grad, data = E + E0 + g0 @ x + 0.5 * x @ Kx, grad + g0 + Kx, data + d
-            else:
-                e, g, d = self._assemble(t, idx, x)
-                E, grad, data = E + e, grad + g, data + d
+                E, grad = E + E0 + g0 @ x + 0.5 * x @ Kx, grad + g0 + Kx
+                if hessian:
+                    data += d
+                continue
+            out = t.run("full" if hessian else "gradient", x)
+            E += float(out[0].sum())
+            grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
+            if hessian:
+                data += np.bincount(idx, weights=out[2].ravel(), minlength=self.nnz)
         return E, grad, data
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, without the Hessian."""
-        E, grad = 0.0, np.zeros(self.ndofs)
-        for t, idx in zip(self.terms, self.scatter):
-            if terms is not None and t not in terms:
-                continue
-            if t.is_quadratic:
-                E0, g0, _, K = self._quadratic(t, idx)
-                Kx = K @ x
-                E, grad = E + E0 + g0 @ x + 0.5 * x @ Kx, grad + g0 + Kx
-            else:
-                e, g = t.run("gradient", x)
-                E += float(e.sum())
-                grad += np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
-        return E, grad
+        return self.evaluate(x, terms, hessian=False)[:2]
 
     def matrix(self, data):
         return sp.csr_matrix((data, self.indices, self.indptr), shape=(self.ndofs, self.ndofs))

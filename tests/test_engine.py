@@ -211,3 +211,25 @@ def test_non_finite_gap_at_the_initial_guess_names_the_gap():
     p = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - u, [contact])
     with pytest.raises(ValueError, match="gap g of constraint 'support'"):
         p.minimize()
+
+
+def test_uncoupled_field_blocks_are_found_and_the_two_field_hessian_is_exact():
+    mesh = MeshTri.init_symmetric().refined(2)
+    e = ElementTriP2()
+    u1 = ni.Field("u1", mesh, e, fixed="boundary")
+    u2 = ni.Field("u2", mesh, e, fixed="boundary")
+    energy = lambda u1, u2: 0.5 * dot(grad(u1), grad(u1)) + dot(grad(u2), grad(u2)) - u1 + u2
+    contact = ni.Inequality(lambda u1, u2: u2 + 0.01 - u1, lambda u1: 1.0 + lap(u1),
+                            ni.Scaling(0.002, 2), ni.cells(u1, intorder=4))
+    p = ni.Problem([u1, u2], energy, [contact], alpha0_limits={"contact": 1.0})
+    (energy_term,), (contact_term,) = p.energy_terms, p.constraint_terms
+    assert energy_term.coupling == ((True, False), (False, True))
+    assert contact_term.coupling == ((True, True), (True, True))
+    rng = np.random.default_rng(1)
+    x = p.initial(0.05 * rng.standard_normal(p.ndofs))
+    v = np.zeros(p.ndofs)
+    v[p.free] = rng.standard_normal(p.free.size)
+    eps = 1e-6
+    fd = (p.gradient(x + eps * v) - p.gradient(x - eps * v)) / (2 * eps)
+    Hv = p.hessian(x) @ v
+    assert np.allclose(fd, Hv, rtol=1e-5, atol=1e-6 * np.abs(Hv).max())
