@@ -233,3 +233,14 @@ def test_uncoupled_field_blocks_are_found_and_the_two_field_hessian_is_exact():
     fd = (p.gradient(x + eps * v) - p.gradient(x - eps * v)) / (2 * eps)
     Hv = p.hessian(x) @ v
     assert np.allclose(fd, Hv, rtol=1e-5, atol=1e-6 * np.abs(Hv).max())
+
+
+def test_the_readme_example_runs_and_converges():
+    import pathlib
+    text = (pathlib.Path(__file__).parents[1] / "README.md").read_text()
+    code = text.split("```python")[1].split("```")[0]
+    scope = {}
+    exec(compile(code, "README.md", "exec"), scope)
+    result = scope["result"]
+    assert result.converged and result.active_count > 0
+    assert result.max_violation < 1e-2
