@@ -77,6 +77,8 @@ def pcg(A, b, M, rtol, maxiter):
     |b - A x| <= rtol |b|, (None, maxiter) if not reached.  A direction of
     non-positive curvature raises IndefiniteHessian."""
     x, r = np.zeros_like(b), b.copy()
+    if not r.any():
+        return x, 0
     z = M(r)
     p, rz, stop = z.copy(), r @ z, rtol * np.linalg.norm(b)
     for it in range(1, maxiter + 1):

@@ -201,6 +201,8 @@ def test_pcg_reports_negative_curvature():
         pcg(A, np.array([1.0, 1.0]), lambda r: r, 1e-12, 10)
     x, its = pcg(np.diag([1.0, 2.0]), np.array([1.0, 1.0]), lambda r: r, 1e-12, 10)
     assert np.allclose(x, [1.0, 0.5]) and its <= 2
+    x, its = pcg(np.diag([1.0, 2.0]), np.zeros(2), lambda r: r, 1e-12, 10)
+    assert not x.any() and its == 0
 
 
 def test_non_finite_gap_at_the_initial_guess_names_the_gap():
