@@ -66,7 +66,9 @@ def _pad(a, n):
 class Term:
     """A pointwise density integrated on a measure, ready to assemble."""
 
-    def __init__(self, pointwise, names, measure, fields, offsets, label):
+    def __init__(self, pointwise, names, measure, fields, offsets, label, keep_points=False):
+        """keep_points: store the quadrature points x even if the density does not use
+        them (constraints keep them for their reports)."""
         by_name = {f.name: f for f in fields}
         unknown = [k for k in names if k not in by_name and k not in ("x", "n", "h")]
         if unknown:
@@ -82,8 +84,7 @@ class Term:
             measure.attach(f)
         W = measure.weights
         self.nel, self.nq = W.shape
-        x = measure.points
-        self.dim = x.shape[0]
+        self.dim = measure.mesh.dim()
         n = measure.normals
         self.has_normal = n is not None
         self.layout = self._record(fs)
@@ -106,7 +107,9 @@ class Term:
         self.field_dofs = [d + offsets[f.name] for d, f in zip(self.dofs, self.fields)]
         self.global_dofs = np.concatenate(self.field_dofs, axis=1)
         self.W = W
-        self.x = np.ascontiguousarray(np.moveaxis(x, 0, -1))
+        self.x = np.ascontiguousarray(np.moveaxis(measure.points, 0, -1)) \
+            if "x" in names or keep_points else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
+                                                                (self.nel, self.nq, self.dim))
         self.n = np.ascontiguousarray(np.moveaxis(n, 0, -1)) if self.has_normal \
             else np.broadcast_to(np.zeros((1, self.nq, self.dim)), (self.nel, self.nq, self.dim))
         self.h = np.asarray(measure.h, dtype=float)

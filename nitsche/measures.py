@@ -26,8 +26,11 @@ def cell_diameters(mesh):
     if id(mesh) not in _DIAMETERS:
         p = mesh.p[:, mesh.t]  # (dim, nverts, nelems)
         nv = p.shape[1]
-        _DIAMETERS[id(mesh)] = np.max([np.sqrt(np.sum((p[:, i] - p[:, j]) ** 2, axis=0))
-                                       for i in range(nv) for j in range(i + 1, nv)], axis=0)
+        squared = np.zeros(p.shape[2])
+        for i in range(nv):
+            for j in range(i + 1, nv):
+                np.maximum(squared, np.sum((p[:, i] - p[:, j]) ** 2, axis=0), out=squared)
+        _DIAMETERS[id(mesh)] = np.sqrt(squared)
         weakref.finalize(mesh, _DIAMETERS.pop, id(mesh), None)
     return _DIAMETERS[id(mesh)]
 

@@ -52,7 +52,7 @@ class Problem:
         self.alpha0_limits = dict(alpha0_limits or {})
         self._resolve_alpha0()
         self.constraint_terms = [Term(c.pointwise(), c.names, c.on, self.fields, self.offsets,
-                                      f"constraint '{c.name}'") for c in self.constraints]
+                                      f"constraint '{c.name}'", keep_points=True) for c in self.constraints]
         self.value_terms = [t.with_pointwise(c.values())
                             for c, t in zip(self.constraints, self.constraint_terms)]
         self.assembler = Assembler(self.energy_terms + self.constraint_terms, self.ndofs)
