@@ -23,6 +23,7 @@ import scipy.sparse as sp
 
 from jax.extend.core import Literal
 
+from .functional import RESERVED
 from .jets import Jet
 
 CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small terms, the rest
@@ -63,6 +64,14 @@ def _pad(a, n):
     return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
 
 
+def check_arguments(names, fields, label):
+    """Every argument of a density names a field or x, n, h: otherwise a clear error."""
+    unknown = [k for k in names if k not in fields and k not in RESERVED]
+    if unknown:
+        raise ValueError(f"{label}: unknown argument(s) {unknown}; a density takes fields "
+                         f"{sorted(fields)} and x (point), n (normal), h (mesh size)")
+
+
 class Term:
     """A pointwise density integrated on a measure, ready to assemble."""
 
@@ -70,10 +79,7 @@ class Term:
         """keep_points: store the quadrature points x even if the density does not use
         them (constraints keep them for their reports)."""
         by_name = {f.name: f for f in fields}
-        unknown = [k for k in names if k not in by_name and k not in ("x", "n", "h")]
-        if unknown:
-            raise ValueError(f"{label}: unknown argument(s) {unknown}; a density takes fields "
-                             f"{sorted(by_name)} and x (point), n (normal), h (mesh size)")
+        check_arguments(names, by_name, label)
         if "n" in names and measure.normals is None:
             raise ValueError(f"{label} uses the normal n but is integrated over cells; "
                              "use a facet measure")

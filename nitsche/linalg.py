@@ -100,7 +100,9 @@ def pcg(A, b, M, rtol, maxiter):
 
 class SuperLU:
     name = "superlu"
-    factorizations = 0
+
+    def __init__(self):
+        self.factorizations = 0
 
     def stats(self):
         return dict(factorizations=self.factorizations)
@@ -145,27 +147,27 @@ class AMGCG:
         self.M, self.base_rate = self.ml.aspreconditioner(cycle="V"), None
         self.setups += 1
 
-    def _cg(self, A, b, x0=None, maxiter=None):
+    def _cg(self, A, b, tol, x0=None, maxiter=None):
         count = [0]
-        x, info = spla.cg(A, b, x0=x0, rtol=self.tol, maxiter=maxiter or self.maxiter, M=self.M,
+        x, info = spla.cg(A, b, x0=x0, rtol=tol, maxiter=maxiter or self.maxiter, M=self.M,
                           callback=lambda xk: count.__setitem__(0, count[0] + 1))
         return x, info, count[0]
 
     def solve(self, A, b, rtol=0.0):
         A = A.tocsr()
-        self.tol = max(rtol, self.rtol)  # Newton's forcing term, not below our own rtol
-        decades = -np.log10(self.tol)
+        tol = max(rtol, self.rtol)  # Newton's forcing term, not below our own rtol
+        decades = -np.log10(tol)
         if self.ml is None or self.ml.levels[0].A.shape != A.shape:
             self._build(A)
-            x, info, its = self._cg(A, b)
+            x, info, its = self._cg(A, b, tol)
             fresh = its
         else:  # the previous hierarchy, for a bounded number of iterations
             limit = int(self.rebuild_factor * self.base_rate * decades) + self.slack
-            x, info, its = self._cg(A, b, maxiter=limit)
+            x, info, its = self._cg(A, b, tol, maxiter=limit)
             fresh = None
             if info != 0:
                 self._build(A)
-                x, info, fresh = self._cg(A, b, x0=x)
+                x, info, fresh = self._cg(A, b, tol, x0=x)
                 its += fresh
         if self.base_rate is None:
             self.base_rate = max(fresh, 1) / decades

@@ -95,7 +95,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     x_ref[free] = 0.0
     ref = np.linalg.norm(problem.gradient(x_ref)[free])
     if not (np.isfinite(ref) and ref > 0):  # e.g. a density undefined at zero: scale by x0
-        ref = np.linalg.norm(problem.gradient(x)[free]) or 1.0
+        ref = np.linalg.norm(g0[free]) or 1.0
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
     for it in range(maxiter + 1):
         t = time.perf_counter()

@@ -4,8 +4,8 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from .assembly import Assembler, Term
-from .functional import RESERVED, Integral
+from .assembly import Assembler, Term, check_arguments
+from .functional import Integral
 from .measures import cells
 
 
@@ -63,12 +63,8 @@ class Problem:
     def _check_arguments(self):
         """Every argument of a constraint's gap and multiplier names a field or x, n, h."""
         for c in self.constraints:
-            for part, names in (("gap", c.gap_names), ("multiplier", c.multiplier_names)):
-                unknown = [k for k in names if k not in self.by_name and k not in RESERVED]
-                if unknown:
-                    raise ValueError(f"the {part} of constraint '{c.name}': unknown argument(s) "
-                                     f"{unknown}; a density takes fields {sorted(self.by_name)} "
-                                     "and x (point), n (normal), h (mesh size)")
+            check_arguments(c.gap_names, self.by_name, f"the gap of constraint '{c.name}'")
+            check_arguments(c.multiplier_names, self.by_name, f"the multiplier of constraint '{c.name}'")
 
     # -- alpha0 -----------------------------------------------------------------
     def _resolve_alpha0(self):
