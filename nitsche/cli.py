@@ -1,12 +1,33 @@
-"""The command line: nitsche list | run CASE | study CASE."""
+"""The command line: nitsche list | run CASE | study CASE | paper.
+
+Exit status: 0 converged; 1 Newton did not converge (the outputs say so); 2 a usage
+error (bad option, parameter or output folder: one line on stderr, nothing written);
+3 the output could not be written (disk full, file-size limit: the folder is as it
+was); 130 / 143 interrupted by SIGINT / SIGTERM (the folder is as it was).
+"""
 import argparse
+import math
 import os
+import signal
 import sys
-import time
+import threading
 import warnings
 
 from . import cases as registry
 from .case import ParameterError, parse_assignments
+from .output import Interrupted, OutputFolder, raise_interrupted
+
+SOLVERS = ("auto", "cholmod", "superlu", "amg")
+USAGE, WRITE_FAILED = 2, 3
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit 2)."""
+
+    def error(self, message):
+        print(f"nitsche: error: {message} (see 'nitsche {self.prog.split()[-1]} --help')"
+              if self.prog != "nitsche" else f"nitsche: error: {message}", file=sys.stderr)
+        sys.exit(USAGE)
 
 
 def _common(sp):
@@ -16,14 +37,16 @@ def _common(sp):
     sp.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                     help="set a case parameter (repeatable); see 'nitsche run CASE --help'")
     sp.add_argument("--out", default=None, help="output folder (default out/CASE)")
-    sp.add_argument("--solver", default="auto", help="linear solver: auto, cholmod, superlu, amg")
+    sp.add_argument("--overwrite", action="store_true",
+                    help="replace the outputs of an unknown earlier run in the --out folder")
+    sp.add_argument("--solver", default="auto", choices=SOLVERS, help="linear solver")
     sp.add_argument("--maxiter", type=int, default=50, help="Newton iteration limit")
     sp.add_argument("--rtol", type=float, default=1e-10, help="Newton relative residual tolerance")
     sp.add_argument("-h", "--help", action="store_true", help="show this help and the case's parameters")
 
 
 def parser():
-    p = argparse.ArgumentParser(prog="nitsche", description="General Nitsche method for "
+    p = Parser(prog="nitsche", description="General Nitsche method for "
                                 "constrained problems of solid mechanics")
     sub = p.add_subparsers(dest="command", required=True)
     sub.add_parser("list", help="list the cases")
@@ -42,6 +65,8 @@ def parser():
     pa.add_argument("--out", default=os.path.join("out", "paper"), help="output folder (default out/paper)")
     pa.add_argument("--fast", action="store_true", help="a small version: fewer levels")
     pa.add_argument("--cases", nargs="+", default=None, metavar="CASE", help="only these cases")
+    pa.add_argument("--overwrite", action="store_true",
+                    help="replace the outputs of an unknown earlier run in the --out folder")
     return p
 
 
@@ -52,9 +77,37 @@ def show_warning(message, category, filename, lineno, file=None, line=None):
 
 def main(argv=None):
     args = parser().parse_args(argv)
-    with warnings.catch_warnings():
-        warnings.showwarning = show_warning
-        return _command(args)
+    handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        handlers = {signal.SIGTERM: signal.signal(signal.SIGTERM, raise_interrupted),
+                    # a file-size limit: the write fails (EFBIG) instead of killing the process
+                    signal.SIGXFSZ: signal.signal(signal.SIGXFSZ, signal.SIG_IGN)}
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = show_warning
+            return _command(args)
+    except (KeyboardInterrupt, Interrupted) as e:
+        signum = e.signum if isinstance(e, Interrupted) else signal.SIGINT
+        print(f"nitsche: interrupted ({signal.Signals(signum).name}); the output folder holds "
+              "what it held before", file=sys.stderr)
+        return 128 + signum
+    finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
+
+
+def check_options(args):
+    """Newton's options and the levels, before anything is solved or written."""
+    if args.maxiter < 0:
+        raise ParameterError(f"--maxiter must be >= 0 (Newton iterations), got {args.maxiter}")
+    if not (math.isfinite(args.rtol) and 0 < args.rtol < 1):
+        raise ParameterError(f"--rtol must lie in (0, 1) (Newton's relative residual), "
+                             f"got {args.rtol:g}")
+    if args.command == "study":
+        if args.levels < 1:
+            raise ParameterError(f"--levels must be >= 1, got {args.levels}")
+        if args.start < 0:
+            raise ParameterError(f"--start must be >= 0 (0 is the coarsest mesh), got {args.start}")
 
 
 def _command(args):
@@ -65,7 +118,7 @@ def _command(args):
             return 0
         if args.command == "paper":
             from .paper import paper
-            return paper(args.out, fast=args.fast, only=args.cases)
+            return paper(args.out, fast=args.fast, only=args.cases, overwrite=args.overwrite)
         case = registry.get(args.case)
         if args.help:
             parser()._subparsers._group_actions[0].choices[args.command].print_help()
@@ -76,91 +129,39 @@ def _command(args):
         if args.degree is None:  # e.g. Morley (2) or BFS (3) plates have one element only
             args.degree = case.degrees[0]
         case.check_degree(args.degree)
-        out = args.out or os.path.join("out", case.name)
-        os.makedirs(out, exist_ok=True)
-        options = dict(solver=args.solver, maxiter=args.maxiter, rtol=args.rtol)
+        check_options(args)
         if args.command == "run":
-            return _run(case, args, p, out, options)
-        return _study(case, args, p, out, options)
+            case.check_level(args.level, args.degree, p)
+        else:
+            case.check_level(args.start + args.levels - 1, args.degree, p,
+                             option="the finest level (--start + --levels - 1)")
+        out = args.out or os.path.join("out", case.name)
+        options = dict(solver=args.solver, maxiter=args.maxiter, rtol=args.rtol)
+        return execute(case, args, p, out, options)
     except (ParameterError, KeyError, ValueError) as e:
         msg = e.args[0] if isinstance(e, KeyError) else str(e)
         print(f"nitsche: error: {msg}", file=sys.stderr)
-        return 2
+        return USAGE
 
 
-def _run(case, args, p, out, options):
-    from .io import write_json, write_vtu
-    from .plot import plot_solution
-    from .study import solve_nested
-    t0 = time.perf_counter()
-    limits = case.alpha0_limits(args.degree, p)
-    if args.verbose:
-        options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
-                                                       f"J_h {E:.12g}", file=sys.stderr)
-    if args.nested:
-        problem, result, its = solve_nested(case, args.level, args.degree, p, limits, options,
-                                            progress=True)
-    else:
-        problem = case.problem(args.level, args.degree, p, limits)
-        result = problem.minimize(**options)
-        its = [result.iterations]
-    seconds = time.perf_counter() - t0
-    reached = args.level - (args.level + 1 - len(its) if args.nested else 0)
-    if reached < args.level:
-        print(f"nitsche: Newton failed at level {reached}: levels {reached + 1}..{args.level} "
-              "were not solved; the report and the files are those of level "
-              f"{reached}", file=sys.stderr)
-    print(f"{case.name}: level {reached}, degree {args.degree}, {problem.ndofs} dofs "
-          f"({problem.free.size} unknowns); Newton iterations per level {its}")
-    print(result.report())
-    errors = case.errors(problem, result, p)
-    for k, v in errors.items():
-        print(f"  error {k}: {v:.6e}")
-    data = dict(case=case.name, level=args.level, level_reached=reached, degree=args.degree,
-                dofs=int(problem.ndofs),
-                unknowns=int(problem.free.size), converged=result.converged, reason=result.reason,
-                newton_iterations=result.iterations, residuals=result.residuals,
-                nested_iterations=its,
-                energy=result.energy, active_count=result.active_count,
-                contact_measure=result.contact_measure, max_violation=result.max_violation,
-                seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
-                solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p), alpha0_limits=limits,
-                constraints=result.constraints, errors=errors)
-    extra = getattr(case.module, "report", None)
-    if extra:
-        data.update(extra(problem, result, p))
-    write_json(os.path.join(out, "result.json"), data)
-    paths = write_vtu(os.path.join(out, "solution"), problem, result.x)
-    figs = [plot_solution(problem, result, os.path.join(out, "solution.png"),
-                          f"{case.name}, level {reached}, P{args.degree}")]
-    hook = getattr(case.module, "figures", None)
-    if hook:
-        figs += hook(problem, result, p, out)
-    print(f"wrote {os.path.join(out, 'result.json')}, {', '.join(paths + figs)}")
-    return 0 if result.converged else 1
-
-
-def _study(case, args, p, out, options):
-    from .io import write_json
-    from .plot import plot_convergence
-    from .study import run_study, table
-    from .newton import NotConverged
+def execute(case, args, p, out, options):
+    """Solve into an OutputFolder and commit it; a failed write leaves the folder as it was."""
+    from . import commands
     try:
-        rows = run_study(case, args.levels, args.degree, p, start=args.start, newton_options=options)
-    except NotConverged as e:
-        print(f"\nnitsche: study stopped: {e}", file=sys.stderr)
-        return 1
-    print(table(rows))
-    rate = case.rate.get(args.degree)
-    write_json(os.path.join(out, "study.json"), dict(case=case.name, degree=args.degree,
-                                                    parameters=vars(p), expected_rate=rate,
-                                                    levels=rows))
-    fig = plot_convergence(rows, os.path.join(out, "convergence.png"), rate,
-                           f"{case.name}, P{args.degree}")
-    hook = getattr(case.module, "study_figures", None)  # optional: study_figures(rows, p, degree, out)
-    figs = [fig] + (hook(rows, p, args.degree, out) if hook else [])
-    print(f"wrote {os.path.join(out, 'study.json')}, {', '.join(figs)}")
-    return 0
+        with OutputFolder(out, overwrite=args.overwrite) as folder:
+            if args.command == "run":
+                rc = commands.run(case, args.level, args.degree, p, folder, options,
+                                  nested=args.nested, verbose=args.verbose)
+            else:
+                rc = commands.study(case, args.levels, args.degree, p, folder, options,
+                                    start=args.start)
+            paths = folder.commit()
+    except OSError as e:
+        print(f"nitsche: error: could not write the output into {out}: {e.strerror or e}; "
+              "the folder holds what it held before", file=sys.stderr)
+        return WRITE_FAILED
+    print(commands.written(paths))
+    return rc
 
 
 if __name__ == "__main__":

@@ -10,10 +10,19 @@ from skfem import ElementVector
 
 
 def write_json(path, data):
-    """Strict JSON (no NaN or Infinity): non-finite numbers are written as null."""
+    """Strict JSON (no NaN or Infinity): non-finite numbers are written as null.  Written
+    to a temporary name beside `path` and renamed: `path` is whole or absent."""
+    text = json.dumps(_plain(data), indent=2, allow_nan=False)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    with open(path, "w") as fh:
-        json.dump(_plain(data), fh, indent=2, allow_nan=False)
+    tmp = os.path.join(os.path.dirname(os.path.abspath(path)),
+                       f".{os.path.basename(path)}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
     return path
 
 

@@ -27,22 +27,45 @@ def mesh_size(problem):
     return float(cell_diameters(problem.fields[0].mesh).max())
 
 
+class StudyFailed(NotConverged):
+    """A level of a study did not converge (or ran out of memory): the rows of the
+    levels finished before it are kept."""
+
+    def __init__(self, level, reason, rows):
+        super().__init__(f"level {level}: {reason}")
+        self.level, self.reason, self.rows = level, reason, with_rates(rows)
+
+
+FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
+
+
 def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, progress=False):
-    """Solve levels first .. level, each from the previous solution; returns the finest
-    (problem, result) and the Newton iterations of every level."""
+    """Solve levels first .. level, each from the previous solution.
+
+    Returns (problem, result, iterations per level, failure): the finest level's problem
+    and result, or, when a level fails (Newton, or an error such as MemoryError on a finer
+    level), those of the finest converged level and failure = dict(level, reason); a
+    failure on the first level returns its unconverged result (an error there is raised)."""
     prev, its = None, []
     for k in range(first, level + 1):
-        problem = case.problem(k, degree, p, limits)
-        result = problem.minimize(prolongate(*prev, problem) if prev else None,
-                                  **(newton_options or {}))
+        try:
+            problem = case.problem(k, degree, p, limits)
+            result = problem.minimize(prolongate(prev[0], prev[1].x, problem) if prev else None,
+                                      **(newton_options or {}))
+        except FAILURES as e:
+            if prev is None:
+                raise
+            reason = "out of memory" if isinstance(e, MemoryError) else f"{type(e).__name__}: {e}"
+            return prev[0], prev[1], its, dict(level=k, reason=reason)
         its.append(result.iterations)
         if progress:
             print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} Newton "
                   f"iterations, {result.seconds:.2f} s", file=sys.stderr, flush=True)
         if not result.converged:
-            break
-        prev = (problem, result.x)
-    return problem, result, its
+            failure = dict(level=k, reason=result.reason)
+            return (prev[0], prev[1], its, failure) if prev else (problem, result, its, failure)
+        prev = (problem, result)
+    return problem, result, its, None
 
 
 def run_study(case, levels, degree, p, start=0, progress=True, newton_options=None):
@@ -55,14 +78,20 @@ def run_study(case, levels, degree, p, start=0, progress=True, newton_options=No
     out = sys.stderr
     for i, level in enumerate(range(start, start + levels)):
         t0 = time.perf_counter()
-        problem = case.problem(level, degree, p, limits)
-        if progress:
-            print(f"[{i + 1}/{levels}] level {level}: {problem.free.size} unknowns ...",
-                  end="", file=out, flush=True)
-        x0 = prolongate(*prev, problem) if prev else None
-        result = problem.minimize(x0, **(newton_options or {}))
+        try:
+            problem = case.problem(level, degree, p, limits)
+            if progress:
+                print(f"[{i + 1}/{levels}] level {level}: {problem.free.size} unknowns ...",
+                      end="", file=out, flush=True)
+            x0 = prolongate(*prev, problem) if prev else None
+            result = problem.minimize(x0, **(newton_options or {}))
+        except FAILURES as e:
+            if not rows:
+                raise
+            raise StudyFailed(level, "out of memory" if isinstance(e, MemoryError)
+                              else f"{type(e).__name__}: {e}", rows)
         if not result.converged:
-            raise NotConverged(f"level {level}: {result.reason}")
+            raise StudyFailed(level, result.reason, rows)
         row = dict(level=level, h=mesh_size(problem), dofs=int(problem.ndofs),
                    unknowns=int(problem.free.size), newton_iterations=result.iterations,
                    energy=result.energy, active_count=result.active_count,
@@ -80,7 +109,12 @@ def run_study(case, levels, degree, p, start=0, progress=True, newton_options=No
         prev = (problem, result.x)
         if progress:
             print(f" {result.iterations} Newton its, {row['seconds']:.2f} s", file=out, flush=True)
-    for key in [k for k in rows[0] if k.startswith("error_")] + ["difference"]:
+    return with_rates(rows)
+
+
+def with_rates(rows):
+    """rows with the rate of each error column and of the successive difference."""
+    for key in [k for k in (rows[0] if rows else ()) if k.startswith("error_")] + ["difference"]:
         vals = [r.get(key) for r in rows]
         for r, rate in zip(rows, rates([v if v is not None else np.nan for v in vals])):
             if r.get(key) is not None:

@@ -186,7 +186,7 @@ def unilateral():
     p = case.parameters()
     limits = case.alpha0_limits(3, p)
     from nitsche.study import solve_nested
-    problem, result, its = solve_nested(case, 2, 3, p, limits)
+    problem, result, its, failure = solve_nested(case, 2, 3, p, limits)
     return case, p, limits, problem, result.check(), its
 
 
@@ -215,7 +215,7 @@ def test_plate_plate_contact_no_penetration():
     limits = case.alpha0_limits(2, p)
     assert limits["contact"] == np.inf and case.problem(0, 2, p, limits).constraints[0].scaling.alpha0 == 0.1
     from nitsche.study import solve_nested
-    problem, result, its = solve_nested(case, 3, 2, p, limits)
+    problem, result, its, failure = solve_nested(case, 3, 2, p, limits)
     result.check()
     rep = plate_plate.report(problem, result, p)
     assert 0.005 < rep["contact_area"] < 0.05

@@ -11,6 +11,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
 from nitsche.ops import dot, grad
+from nitsche.case import POSITIVE
 from nitsche.norms import exact_errors
 
 NAME = "dirichlet"
@@ -19,6 +20,7 @@ PARAMETERS = {
     "kappa": (2.0, "conductivity"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h / kappa, h = cell diameter)"),
 }
+RANGES = {"kappa": POSITIVE, "alpha0": POSITIVE}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 2.0}
 

@@ -26,6 +26,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector, CellBasis
 
 import nitsche as ni
+from nitsche.case import OneOf, POISSON, POSITIVE, ParameterError
 from nitsche.ops import dot, sym_grad
 
 NAME = "elastic-contact"
@@ -44,8 +45,17 @@ PARAMETERS = {
     "delta": (0.01, "hertz: downward displacement of body 2's top"),
     "L": (2.0, "hertz: width of the half model and depth of body 1"),
 }
+RANGES = {"setup": OneOf(("punch", "hertz")), "E1": POSITIVE, "E2": POSITIVE, "nu1": POISSON,
+          "nu2": POISSON, "alpha0": POSITIVE, "R": POSITIVE, "L": POSITIVE}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.0}  # punch: limited by corner and free-boundary singularities
+
+
+def check(p):
+    """Hertz: body 2 is pushed down (delta > 0) by less than the depth of body 1."""
+    if p.setup == "hertz" and not 0 < p.delta < p.L:
+        raise ParameterError(f"parameter delta={p.delta!r} (hertz: downward displacement of "
+                             f"body 2's top) must lie in (0, L = {p.L:g}); set --set delta=...")
 
 
 def lame(E, nu):
@@ -99,7 +109,7 @@ def _meshes(level, p):
         m1 = MeshTri.init_tensor(xs, -ys[::-1]).refined(level)
         m2 = MeshTri.init_tensor(xs, ys[ys <= 0.5 * p.L + 1e-12]).refined(level)
         return m1, m2
-    raise ValueError(f"setup must be 'punch' or 'hertz', not {p.setup!r}")
+    raise AssertionError(p.setup)  # RANGES admits punch and hertz only
 
 
 def _element(degree):

@@ -21,6 +21,7 @@ import numpy as np
 from skfem import MeshHex, MeshQuad, ElementHex1, ElementQuad1, ElementVector, CellBasis
 
 import nitsche as ni
+from nitsche.case import Interval, NONNEGATIVE, POISSON, POSITIVE
 from nitsche.ops import dot, grad, lap, sym_grad
 
 NAME = "membrane-solid"
@@ -34,6 +35,8 @@ PARAMETERS = {
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h^2 / mu, h = membrane cell diameter)"),
     "n0": (5, "cells per side at level 0 (level k: n0 2^k)"),
 }
+RANGES = {"mu": POSITIVE, "d": NONNEGATIVE, "E": POSITIVE, "nu": POISSON, "alpha0": POSITIVE,
+          "n0": Interval(1, closed_lo=True)}
 DEGREES = (1,)
 RATE = {1: 1.0}
 

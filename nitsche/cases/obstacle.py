@@ -14,6 +14,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
 from nitsche.ops import dot, grad, lap
+from nitsche.case import POSITIVE
 from nitsche.norms import exact_errors
 
 NAME = "obstacle"
@@ -23,6 +24,7 @@ PARAMETERS = {
     "f": (0.0, "load per unit area (the exact solution needs f = 0)"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h^2 / T, h = cell diameter)"),
 }
+RANGES = {"T": POSITIVE, "alpha0": POSITIVE}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.5}
 

@@ -20,6 +20,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriMorley
 
 import nitsche as ni
+from nitsche.case import NONNEGATIVE, PLATE_POISSON, POSITIVE, ParameterError
 from nitsche.ops import hess
 
 NAME = "plate-plate"
@@ -33,6 +34,7 @@ PARAMETERS = {
     "d": (0.01, "initial gap between the plates"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h^4 / D1, h = cell diameter)"),
 }
+RANGES = {"D1": POSITIVE, "D2": POSITIVE, "nu": PLATE_POISSON, "d": NONNEGATIVE, "alpha0": POSITIVE}
 DEGREES = (2,)          # Morley: non-conforming quadratics
 RATE = {2: 1.0}
 PAPER = [dict(command="study", degree=2, levels=6, level=None, sets={}),
@@ -45,10 +47,14 @@ def bending(H, D, nu):
     return 0.5 * D * ((1 - nu) * (H ** 2).sum(axis=(0, 1)) + nu * tr ** 2)
 
 
-def build(level, degree, p):
+def check(p):
+    """Plate 1 carries the multiplier: it must be the less stiff one."""
     if p.D1 > p.D2:
-        raise ValueError(f"plate 1 must be the less stiff one (D1 = {p.D1} > D2 = {p.D2}); "
-                         "the multiplier is taken from it")
+        raise ParameterError(f"parameters D1={p.D1:g} > D2={p.D2:g}: plate 1 must be the less "
+                             "stiff one (the multiplier is taken from it); swap them")
+
+
+def build(level, degree, p):
     mesh = MeshTri().refined(level + 2)
     u1 = ni.Field("u1", mesh, ElementTriMorley(), fixed="boundary")
     u2 = ni.Field("u2", mesh, ElementTriMorley(), fixed="boundary")

@@ -18,6 +18,7 @@ from skfem import MeshQuad
 
 import nitsche as ni
 from nitsche.bfs import ElementQuadBFSLocal
+from nitsche.case import NEGATIVE, PLATE_POISSON, POSITIVE
 from nitsche.ops import hess, grad3, tangent
 
 NAME = "plate-unilateral"
@@ -29,6 +30,8 @@ PARAMETERS = {
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h^3 / D, h = cell diameter); "
                        "stable below ~4e-4 (computed: 'auto' takes half the limit)"),
 }
+# f < 0: only the support holds the plate; an upward load lifts it off (unbounded)
+RANGES = {"D": POSITIVE, "nu": PLATE_POISSON, "f": NEGATIVE, "alpha0": POSITIVE}
 DEGREES = (3,)          # bicubic Bogner-Fox-Schmit
 RATE = {3: 2.0}         # paper: about 2 (measured step rates are ragged, mean ~1.8)
 PAPER = [dict(command="study", degree=3, levels=6, level=None, sets={}),

@@ -13,6 +13,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
 from nitsche.ops import dot, grad
+from nitsche.case import OneOf, POSITIVE
 from nitsche.norms import exact_errors
 
 NAME = "signorini"
@@ -22,6 +23,7 @@ PARAMETERS = {
     "alpha0": ("auto", "Nitsche parameter of both boundary terms (alpha = alpha0 h / kappa)"),
     "method": ("nitsche", "'nitsche' or 'penalty' on the contact boundary"),
 }
+RANGES = {"kappa": POSITIVE, "alpha0": POSITIVE, "method": OneOf(("nitsche", "penalty"))}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 2.0}
 
@@ -49,8 +51,6 @@ def load(x, kappa):
 
 
 def build(level, degree, p):
-    if p.method not in ("nitsche", "penalty"):
-        raise ValueError(f"method must be 'nitsche' or 'penalty', not {p.method!r}")
     mesh = MeshTri.init_symmetric().refined(level + 1)
     u = ni.Field("u", mesh, ElementTriP1() if degree == 1 else ElementTriP2())
     q = 2 * degree + 2

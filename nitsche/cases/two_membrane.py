@@ -38,6 +38,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
 from nitsche.conditioning import jacobian_condition, fitted_slope
+from nitsche.case import NONNEGATIVE, OneOf, POSITIVE, ParameterError
 from nitsche.ops import dot, grad, lap
 
 NAME = "two-membrane"
@@ -54,9 +55,12 @@ PARAMETERS = {
     "penalty_alpha0": (0.1, "penalty parameter factor (eps = penalty_alpha0 h^s / mu1)"),
     "compare": (True, "study: also solve the other method at each level (both condition numbers)"),
 }
+METHODS = ("nitsche", "penalty")
+RANGES = {"mu1": POSITIVE, "mu2": POSITIVE, "d": NONNEGATIVE, "alpha0": POSITIVE,
+          "method": OneOf(METHODS), "penalty_power": POSITIVE,
+          "penalty_alpha0": POSITIVE}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.5}   # P2: the multiplier jumps at the free boundary, u in H^{5/2-eps}
-METHODS = ("nitsche", "penalty")
 PAPER = [
     # figure 1: the membranes and the contact pressure
     dict(command="run", degree=2, levels=None, level=4, sets={}, fast=dict(level=2)),
@@ -71,18 +75,20 @@ def penalty_power(p, degree):
     """The power s of h in the penalty parameter: 2 for P1, 3 for P2 unless set."""
     if p.penalty_power == "auto":
         return 2 if degree == 1 else 3
-    s = float(p.penalty_power)
-    if s != round(s) or s < 1:
-        raise ValueError(f"penalty_power must be a positive integer, got {p.penalty_power!r}")
-    return int(s)
+    return int(p.penalty_power)
+
+
+def check(p):
+    """Membrane 1 carries the multiplier: it must be the less stiff one; s an integer."""
+    if p.mu1 > p.mu2:
+        raise ParameterError(f"parameters mu1={p.mu1:g} > mu2={p.mu2:g}: membrane 1 must be the "
+                             "less stiff one (the multiplier is taken from it); swap them")
+    if p.penalty_power != "auto" and float(p.penalty_power) != round(float(p.penalty_power)):
+        raise ParameterError(f"parameter penalty_power={p.penalty_power!r} must be a positive "
+                             "integer or 'auto'")
 
 
 def build(level, degree, p):
-    if p.method not in METHODS:
-        raise ValueError(f"method must be one of {', '.join(METHODS)}, not {p.method!r}")
-    if p.mu1 > p.mu2:
-        raise ValueError(f"membrane 1 must be the less stiff one (mu1 = {p.mu1} > mu2 = {p.mu2}); "
-                         "the multiplier is taken from it")
     mesh = MeshTri().refined(level + 2)
     element = ElementTriP1() if degree == 1 else ElementTriP2()  # one object: one basis for both
     u1 = ni.Field("u1", mesh, element, fixed="boundary")

@@ -1,0 +1,97 @@
+"""What `nitsche run` and `nitsche study` do, as library functions: solve a case, then
+write its outputs (result.json or study.json, VTU, figures) into an entered
+nitsche.output.OutputFolder, which the caller commits.
+
+Return codes: 0 converged; 1 Newton did not converge (the outputs say so: a nested run
+writes its finest converged level, a study the levels it finished).
+"""
+import os
+import sys
+import time
+
+from .io import write_json, write_vtu
+from .plot import plot_convergence, plot_solution
+from .study import StudyFailed, run_study, solve_nested, table
+
+
+def run(case, level, degree, p, out, options, nested=True, verbose=False):
+    """Solve `case` at `level` (nested: levels 0..level, each from the previous one)."""
+    t0 = time.perf_counter()
+    options = dict(options)
+    limits = case.alpha0_limits(degree, p)
+    if verbose:
+        options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
+                                                       f"J_h {E:.12g}", file=sys.stderr)
+    if nested:
+        problem, result, its, failure = solve_nested(case, level, degree, p, limits, options,
+                                                     progress=True)
+    else:
+        problem = case.problem(level, degree, p, limits)
+        result = problem.minimize(**options)
+        its, failure = [result.iterations], None
+        if not result.converged:
+            failure = dict(level=level, reason=result.reason)
+    seconds = time.perf_counter() - t0
+    reached = problem.setup.level
+    if failure and reached < level:
+        print(f"nitsche: Newton failed at level {failure['level']} ({failure['reason']}): "
+              f"levels {failure['level']}..{level} were not solved; the report and the files "
+              f"are those of level {reached}, the finest converged one", file=sys.stderr)
+    print(f"{case.name}: level {reached}, degree {degree}, {problem.ndofs} dofs "
+          f"({problem.free.size} unknowns); Newton iterations per level {its}")
+    print(result.report())
+    errors = case.errors(problem, result, p)
+    for k, v in errors.items():
+        print(f"  error {k}: {v:.6e}")
+    data = dict(case=case.name, level=level, level_reached=reached, degree=degree,
+                dofs=int(problem.ndofs), unknowns=int(problem.free.size),
+                converged=result.converged and failure is None, reason=result.reason,
+                level_converged=result.converged, failure=failure,
+                newton_iterations=result.iterations, residuals=result.residuals,
+                nested_iterations=its,
+                energy=result.energy, active_count=result.active_count,
+                contact_measure=result.contact_measure, max_violation=result.max_violation,
+                seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
+                solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p),
+                alpha0_limits=limits, constraints=result.constraints, errors=errors)
+    if failure and reached < level:
+        data["reason"] = f"level {failure['level']}: {failure['reason']}"
+    extra = getattr(case.module, "report", None)
+    if extra:
+        data.update(extra(problem, result, p))
+    out.adopt(write_vtu(out.stage_prefix("solution"), problem, result.x))
+    out.adopt([plot_solution(problem, result, out.stage("solution.png"),
+                             f"{case.name}, level {reached}, P{degree}")])
+    hook = getattr(case.module, "figures", None)  # figures(problem, result, p, folder) -> paths
+    if hook:
+        out.adopt(hook(problem, result, p, out.staging))
+    write_json(out.stage("result.json"), data)
+    return 0 if data["converged"] else 1
+
+
+def study(case, levels, degree, p, out, options, start=0):
+    """A refinement study of `levels` levels from `start`; study.json and figures."""
+    failure = None
+    try:
+        rows = run_study(case, levels, degree, p, start=start, newton_options=options)
+    except StudyFailed as e:
+        print(f"\nnitsche: study stopped: {e}", file=sys.stderr)
+        rows, failure = e.rows, dict(level=e.level, reason=e.reason)
+    if rows:
+        print(table(rows))
+    data = dict(case=case.name, degree=degree, parameters=vars(p),
+                expected_rate=case.rate.get(degree), levels=rows, failure=failure)
+    if rows:
+        out.adopt([plot_convergence(rows, out.stage("convergence.png"), data["expected_rate"],
+                                    f"{case.name}, P{degree}")])
+        hook = getattr(case.module, "study_figures", None)  # study_figures(rows, p, degree, folder)
+        if hook:
+            out.adopt(hook(rows, p, degree, out.staging))
+    write_json(out.stage("study.json"), data)
+    return 0 if failure is None else 1
+
+
+def written(paths):
+    """The one-line summary of the files a command wrote."""
+    names = sorted(paths, key=lambda q: not q.endswith(("result.json", "study.json")))
+    return "wrote " + ", ".join(os.path.normpath(q) for q in names)
