@@ -113,8 +113,9 @@ class Case:
         for k, allowed in getattr(self.module, "RANGES", {}).items():
             v = values[k]
             if not (v == "auto" and self.defaults[k][0] == "auto") and v not in allowed:
+                auto = " or 'auto'" if self.defaults[k][0] == "auto" else ""
                 raise ParameterError(f"parameter {k}={v!r} ({self.defaults[k][1]}) must be "
-                                     f"{allowed}; set --set {k}=... within that range")
+                                     f"{allowed}{auto}; set --set {k}=... within that range")
         p = SimpleNamespace(**values)
         check = getattr(self.module, "check", None)
         if check:

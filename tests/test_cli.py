@@ -72,7 +72,8 @@ def test_json_writer_converts_numpy_and_non_finite_values(tmp_path):
 @pytest.mark.parametrize("args,message", [
     (["--set", "mu=1"], "valid names: T, f, alpha0"),
     (["--set", "T=abc"], "expected a finite number"),
-    (["--set", "alpha0=-1"], "alpha0 must be a positive"),
+    (["--set", "alpha0=-1"], "alpha0=-1.0 (Nitsche parameter (alpha = alpha0 h^2 / T, h = cell "
+                              "diameter)) must be > 0 or 'auto'"),
     (["--set", "alpha0"], "name=value"),
     (["--degree", "3"], "supports degree"),
 ])
