@@ -98,8 +98,10 @@ class Case:
     def help(self):
         lines = [f"{self.name}: {self.summary}", f"degrees: {', '.join(map(str, self.degrees))}",
                  "parameters (--set name=value):"]
+        ranges = getattr(self.module, "RANGES", {})
         for k, (default, text) in self.defaults.items():
-            lines.append(f"  {k:<12} {str(default):<10} {text}")
+            allowed = f" ({ranges[k]})" if k in ranges else ""
+            lines.append(f"  {k:<12} {str(default):<10} {text}{allowed}")
         return "\n".join(lines)
 
     def parameters(self, overrides=None):
