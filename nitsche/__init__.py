@@ -26,6 +26,7 @@ from .functional import Scaling, Integral, Equality, Inequality, Penalty, Constr
 from .problem import Problem, StabilityWarning  # noqa: E402
 from .newton import Result, NotConverged  # noqa: E402
 from .jets import DerivativeError  # noqa: E402
+from .study import nested, prolongate  # noqa: E402
 from . import ops  # noqa: E402
 
 
@@ -36,4 +37,4 @@ def minimize(energy, fields, constraints=(), x0=None, **options):
 
 __all__ = ["Field", "cells", "facets", "interface", "Scaling", "Integral", "Equality", "Inequality",
            "Penalty", "Constraint", "Problem", "Result", "NotConverged", "StabilityWarning",
-           "DerivativeError", "ops", "minimize"]
+           "DerivativeError", "ops", "minimize", "nested", "prolongate"]

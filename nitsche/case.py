@@ -1,14 +1,19 @@
-"""Ready cases: a problem of the paper as a module, run at any level and degree.
+"""Ready cases: a problem as a module, run at any level and degree.
 
-A case module defines
-    NAME, SUMMARY            the name on the command line and one line about it
-    PARAMETERS               {name: (default, help)}; every physical and numerical parameter
-    DEGREES                  the polynomial degrees it supports
-    RATE                     {degree: expected energy-norm rate}
+A case module (a shipped one, or a file of one's own: `nitsche new NAME` writes a
+commented template) defines
     build(level, degree, p)  -> dict(fields=..., energy=..., constraints=...) for nitsche.Problem,
                                 p a namespace of the parameters; level = uniform refinements
 and optionally
+    NAME, SUMMARY            the name (default: the file name) and one line about it
+                             (default: the docstring's first line)
+    PARAMETERS               {name: (default, help)}; every physical and numerical parameter
+    DEGREES                  the polynomial degrees it supports (default (1,))
+    RATE                     {degree: expected energy-norm rate}
     errors(problem, result, p) -> {name: error against an exact solution}
+    report(problem, result, p) -> {key: value} added to result.json
+    figures(problem, result, p, folder) -> paths of figures written into folder
+    study_extra(problem, result, row), study_figures(rows, p, degree, folder)
     RANGES                   {name: Interval or OneOf}: the physical range of a parameter
     check(p)                 raises ParameterError for combinations RANGES cannot say
                              (e.g. D1 <= D2)
@@ -88,11 +93,24 @@ def machine_memory():
 
 
 class Case:
-    def __init__(self, module):
-        self.module = module
-        self.name, self.summary = module.NAME, module.SUMMARY
-        self.defaults = dict(module.PARAMETERS)
-        self.degrees = tuple(module.DEGREES)
+    def __init__(self, module, default_name=None, path=None):
+        """path: the file a case module of one's own was loaded from (None: shipped)."""
+        self.module, self.path = module, path
+        where = getattr(module, "__file__", module.__name__)
+        if not callable(getattr(module, "build", None)):
+            raise ValueError(f"{where}: a case module defines build(level, degree, p) -> "
+                             "dict(fields=..., energy=..., constraints=...); see 'nitsche new'")
+        self.name = getattr(module, "NAME", default_name)
+        doc = (module.__doc__ or "").strip()
+        self.summary = getattr(module, "SUMMARY", doc.splitlines()[0] if doc else "")
+        self.defaults = dict(getattr(module, "PARAMETERS", {}))
+        self.degrees = tuple(getattr(module, "DEGREES", (1,)))
+        for k, v in self.defaults.items():
+            if not (isinstance(v, tuple) and len(v) == 2):
+                raise ValueError(f"{where}: PARAMETERS[{k!r}] must be (default, help), not {v!r}")
+        unknown = set(getattr(module, "RANGES", {})) - set(self.defaults)
+        if unknown:
+            raise ValueError(f"{where}: RANGES names no parameter: {sorted(unknown)}")
         self._limits = {}
 
     def help(self):
@@ -177,6 +195,11 @@ class Case:
     def errors(self, problem, result, p):
         fn = getattr(self.module, "errors", None)
         return fn(problem, result, p) if fn else {}
+
+    @property
+    def command_name(self):
+        """How the command line names the case: its name, or its file."""
+        return self.path or self.name
 
     @property
     def rate(self):

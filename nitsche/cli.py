@@ -31,7 +31,7 @@ class Parser(argparse.ArgumentParser):
 
 
 def _common(sp):
-    sp.add_argument("case")
+    sp.add_argument("case", help="a shipped case (nitsche list) or a case module FILE.py")
     sp.add_argument("--degree", type=int, default=None,
                     help="polynomial degree (default: the case's first, 1 for most cases)")
     sp.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
@@ -65,8 +65,13 @@ def parser():
     pa.add_argument("--out", default=os.path.join("out", "paper"), help="output folder (default out/paper)")
     pa.add_argument("--fast", action="store_true", help="a small version: fewer levels")
     pa.add_argument("--cases", nargs="+", default=None, metavar="CASE", help="only these cases")
+    pa.add_argument("--from", dest="source", default=None, metavar="FOLDER",
+                    help="the case modules (*.py) in FOLDER instead of the shipped cases")
     pa.add_argument("--overwrite", action="store_true",
                     help="replace the outputs of an unknown earlier run in the --out folder")
+    new = sub.add_parser("new", help="write NAME.py, a commented case module to edit "
+                         "(then: nitsche run NAME.py)")
+    new.add_argument("name", help="the case's name (a Python identifier; the file NAME.py)")
     return p
 
 
@@ -118,7 +123,10 @@ def _command(args):
             return 0
         if args.command == "paper":
             from .paper import paper
-            return paper(args.out, fast=args.fast, only=args.cases, overwrite=args.overwrite)
+            return paper(args.out, fast=args.fast, only=args.cases, overwrite=args.overwrite,
+                         source=args.source)
+        if args.command == "new":
+            return new_case(args.name)
         case = registry.get(args.case)
         if args.help:
             parser()._subparsers._group_actions[0].choices[args.command].print_help()
@@ -142,6 +150,22 @@ def _command(args):
         msg = e.args[0] if isinstance(e, KeyError) else str(e)
         print(f"nitsche: error: {msg}", file=sys.stderr)
         return USAGE
+
+
+def new_case(name):
+    """Write NAME.py from the commented template of a case module."""
+    from importlib.resources import files
+    if not name.isidentifier():
+        raise ParameterError(f"new {name!r}: the name must be a Python identifier "
+                             "(letters, digits, _), e.g. my_block")
+    path = f"{name}.py"
+    if os.path.exists(path):
+        raise ParameterError(f"new {name}: {path} exists; choose another name or remove it")
+    text = files("nitsche.templates").joinpath("case_template.py").read_text()
+    with open(path, "x") as fh:
+        fh.write(text.replace("__NAME__", name))
+    print(f"wrote {path}: edit build(), then 'nitsche run {path}' or 'nitsche study {path}'")
+    return 0
 
 
 def execute(case, args, p, out, options):

@@ -39,33 +39,46 @@ class StudyFailed(NotConverged):
 FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
 
 
+def nested(make_problem, levels, **newton_options):
+    """Nested iteration for any problem: for each k in `levels`, minimize J_h of
+    make_problem(k) from the previous level's solution prolongated to it (I u_{k-1}).
+    Yields (k, problem, result); stops after a level that does not converge."""
+    prev = None
+    for k in levels:
+        problem = make_problem(k)
+        result = problem.minimize(prolongate(prev[0], prev[1].x, problem) if prev else None,
+                                  **newton_options)
+        yield k, problem, result
+        if not result.converged:
+            return
+        prev = (problem, result)
+
+
 def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, progress=False):
-    """Solve levels first .. level, each from the previous solution.
+    """Solve the case's levels first .. level by nested iteration.
 
     Returns (problem, result, iterations per level, failure): the finest level's problem
     and result, or, when a level fails (Newton, or an error such as MemoryError on a finer
     level), those of the finest converged level and failure = dict(level, reason); a
     failure on the first level returns its unconverged result (an error there is raised)."""
     prev, its = None, []
-    for k in range(first, level + 1):
-        try:
-            problem = case.problem(k, degree, p, limits)
-            result = problem.minimize(prolongate(prev[0], prev[1].x, problem) if prev else None,
-                                      **(newton_options or {}))
-        except FAILURES as e:
-            if prev is None:
-                raise
-            reason = "out of memory" if isinstance(e, MemoryError) else f"{type(e).__name__}: {e}"
-            return prev[0], prev[1], its, dict(level=k, reason=reason)
-        its.append(result.iterations)
-        if progress:
-            print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} Newton "
-                  f"iterations, {result.seconds:.2f} s", file=sys.stderr, flush=True)
-        if not result.converged:
-            failure = dict(level=k, reason=result.reason)
-            return (prev[0], prev[1], its, failure) if prev else (problem, result, its, failure)
-        prev = (problem, result)
-    return problem, result, its, None
+    try:
+        for k, problem, result in nested(lambda k: case.problem(k, degree, p, limits),
+                                         range(first, level + 1), **(newton_options or {})):
+            its.append(result.iterations)
+            if progress:
+                print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} "
+                      f"Newton iterations, {result.seconds:.2f} s", file=sys.stderr, flush=True)
+            if not result.converged:
+                failure = dict(level=k, reason=result.reason)
+                return (*prev, its, failure) if prev else (problem, result, its, failure)
+            prev = (problem, result)
+    except FAILURES as e:
+        if prev is None:
+            raise
+        reason = "out of memory" if isinstance(e, MemoryError) else f"{type(e).__name__}: {e}"
+        return (*prev, its, dict(level=first + len(its), reason=reason))
+    return (*prev, its, None)
 
 
 def run_study(case, levels, degree, p, start=0, progress=True, newton_options=None):

@@ -1,0 +1,92 @@
+"""A user's own case module gets what a shipped case gets: run, study, paper index, nesting."""
+import json
+import os
+
+import numpy as np
+import pytest
+from skfem import ElementTriP1, MeshTri
+
+import nitsche as ni
+from nitsche.cases import load
+from nitsche.cli import main
+from nitsche.ops import dot, grad
+
+
+@pytest.fixture
+def block(tmp_path, monkeypatch, capsys):
+    """The template written by `nitsche new block`, in a fresh folder."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["new", "block"]) == 0
+    assert "wrote block.py" in capsys.readouterr().out
+    return tmp_path / "block.py"
+
+
+def test_new_refuses_to_overwrite_and_bad_names(block, capsys):
+    text = block.read_text()
+    assert main(["new", "block"]) == 2 and "block.py exists" in capsys.readouterr().err
+    assert main(["new", "my-block"]) == 2 and "Python identifier" in capsys.readouterr().err
+    assert block.read_text() == text
+
+
+def test_template_case_runs_and_balances_the_load(block, tmp_path):
+    """Run through the CLI; the floor force equals the force the top exerts (to round-off):
+    the reaction at the held top dofs is the gradient of J there."""
+    assert main(["run", "block.py", "--level", "2", "--out", "o"]) == 0
+    data = json.loads((tmp_path / "o" / "result.json").read_text())
+    assert data["case"] == "block" and data["converged"] and data["level_reached"] == 2
+    case = load("block.py")
+    p = case.parameters()
+    problem = case.problem(2, 1, p, case.alpha0_limits(1, p))
+    result = problem.minimize().check()
+    g = problem.assembler.gradient(result.x, problem.energy_terms)[1]
+    y_dofs = problem.fields[0].basis.nodal_dofs[1]
+    top = np.intersect1d(problem.fixed, y_dofs)
+    assert data["floor_force"] == pytest.approx(-g[top].sum(), rel=1e-8)
+    assert data["floor_force"] > 0
+
+
+def test_template_case_study_and_help(block, tmp_path, capsys):
+    assert main(["study", "block.py", "--levels", "3", "--degree", "2", "--out", "s"]) == 0
+    rows = json.loads((tmp_path / "s" / "study.json").read_text())["levels"]
+    assert [r["level"] for r in rows] == [0, 1, 2] and rows[-1]["rate"] > 0.5
+    assert main(["run", "block.py", "--help"]) == 0
+    assert "Young's modulus" in capsys.readouterr().out
+    assert main(["run", "block.py", "--set", "nu=0.5", "--out", "x"]) == 2
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_module_without_build_is_a_clear_error(tmp_path, capsys):
+    (tmp_path / "empty.py").write_text("NAME = 'empty'\n")
+    assert main(["run", str(tmp_path / "empty.py"), "--out", str(tmp_path / "o")]) == 2
+    assert "defines build(level, degree, p)" in capsys.readouterr().err
+    (tmp_path / "broken.py").write_text("import no_such_module\n")
+    assert main(["run", str(tmp_path / "broken.py"), "--out", str(tmp_path / "o")]) == 2
+    assert "importing it failed: ModuleNotFoundError" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "missing.py")]) == 2
+    assert not (tmp_path / "o").exists()
+
+
+def test_paper_index_of_a_folder_of_modules(block, tmp_path):
+    os.mkdir("mods")
+    os.rename("block.py", "mods/block.py")
+    assert main(["paper", "--fast", "--from", "mods", "--out", "idx"]) == 0
+    index = (tmp_path / "idx" / "index.md").read_text()
+    assert "nitsche study mods/block.py" in index and "block/study-P1/convergence.png" in index
+    assert (tmp_path / "idx" / "block" / "run-P1" / "result.json").exists()
+
+
+def test_nested_iteration_for_a_problem_of_ones_own():
+    """ni.nested solves each level from the previous one: fewer Newton iterations than
+    from zero on the finest level, and the same solution."""
+    def make(level):
+        mesh = MeshTri.init_symmetric().refined(level + 2)
+        u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+        return ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) + 10.0 * u,
+                          [ni.Inequality(gap=lambda u: u + 0.1, multiplier=lambda u: 0.0 * u.value - 10.0,
+                                         scaling=ni.Scaling(0.1, h_power=2), on=ni.cells(u))])
+    runs = list(ni.nested(make, range(4)))
+    assert [k for k, _, _ in runs] == [0, 1, 2, 3]
+    problem, result = runs[-1][1], runs[-1][2]
+    direct = make(3).minimize().check()
+    assert result.converged and np.allclose(result.x, direct.x, atol=1e-10)
+    assert result.iterations < direct.iterations
