@@ -28,32 +28,64 @@ from .jets import Jet
 
 CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small terms, the rest
 _COMPILED = {}
-_ALIVE = []
+_ALIVE = {}  # id -> object: an identity key stays valid while the object lives
 compile_seconds = [0.0]  # compilation time spent in this process
+MAX_DEPTH = 32  # nesting beyond which an object is keyed by identity
 
 
-def fingerprint(obj, depth=0):
-    """A hashable key equal for functions with the same code and closure values."""
-    if depth > 10:
-        _ALIVE.append(obj)
-        return ("id", id(obj))
+def fingerprint(obj):
+    """A hashable key equal for densities that compute the same thing: a function by its
+    code, its closure values, its defaults and the module globals that its code (and the
+    code nested in it) reads, recursively; arrays and parameter namespaces by value,
+    modules by name, other objects by identity."""
+    return _key(obj, 0, {})
+
+
+def _key(obj, depth, functions):
+    """fingerprint of obj at nesting depth; `functions`: id -> key of the functions keyed
+    so far in this call (None while one is being keyed: a recursive reference)."""
     if obj is None or isinstance(obj, (bool, int, float, complex, str, bytes)):
         return (type(obj).__name__, obj)
     if isinstance(obj, np.ndarray):
         return ("nd", obj.shape, obj.dtype.str, hashlib.sha1(np.ascontiguousarray(obj).tobytes()).hexdigest())
-    if isinstance(obj, (tuple, list)):
-        return (type(obj).__name__,) + tuple(fingerprint(o, depth + 1) for o in obj)
-    if isinstance(obj, dict):
-        return ("dict",) + tuple((k, fingerprint(v, depth + 1)) for k, v in sorted(obj.items(), key=lambda kv: str(kv[0])))
-    if isinstance(obj, types.FunctionType):
-        cells = tuple(fingerprint(c.cell_contents, depth + 1) for c in (obj.__closure__ or ()))
-        return ("fn", obj.__code__, cells, fingerprint(obj.__defaults__, depth + 1))
     if isinstance(obj, types.ModuleType):
         return ("module", obj.__name__)
+    if depth > MAX_DEPTH:
+        return _identity(obj)
+    if isinstance(obj, (tuple, list)):
+        return (type(obj).__name__,) + tuple(_key(o, depth + 1, functions) for o in obj)
+    if isinstance(obj, dict):
+        return ("dict",) + tuple((k, _key(v, depth + 1, functions))
+                                 for k, v in sorted(obj.items(), key=lambda kv: str(kv[0])))
     if isinstance(obj, types.SimpleNamespace):  # parameters: by value, they may be changed
-        return ("namespace", fingerprint(vars(obj), depth + 1))
-    _ALIVE.append(obj)  # an identity key stays valid only while the object lives
+        return ("namespace", _key(vars(obj), depth + 1, functions))
+    if isinstance(obj, types.FunctionType):
+        if id(obj) in functions:
+            return functions[id(obj)] or ("recursive", obj.__qualname__)
+        functions[id(obj)] = None
+        cells = tuple(_key(c.cell_contents, depth + 1, functions) for c in (obj.__closure__ or ()))
+        read = tuple((name, _key(obj.__globals__[name], depth + 1, functions))
+                     for name in global_names(obj.__code__) if name in obj.__globals__)
+        functions[id(obj)] = ("fn", obj.__code__, cells, _key(obj.__defaults__, depth + 1, functions), read)
+        return functions[id(obj)]
+    return _identity(obj)
+
+
+def _identity(obj):
+    """An identity key, valid while the object lives (it is kept alive here)."""
+    _ALIVE[id(obj)] = obj
     return ("id", id(obj))
+
+
+def global_names(code):
+    """The names that a code object and the code nested in it (lambdas, inner functions)
+    may read as globals: its co_names (names not among the function's globals are
+    builtins and skipped; an attribute name that is also a global is keyed harmlessly)."""
+    names = set(code.co_names)
+    for const in code.co_consts:
+        if isinstance(const, types.CodeType):
+            names.update(global_names(const))
+    return tuple(sorted(names))
 
 
 def _pad(a, n):
@@ -72,6 +104,10 @@ def check_arguments(names, fields, label):
                          f"{sorted(fields)} and x (point), n (normal), h (mesh size)")
 
 
+class ConstantDensity(ValueError):
+    """A density that depends on no field (e.g. a given multiplier lambda = q)."""
+
+
 class Term:
     """A pointwise density integrated on a measure, ready to assemble."""
 
@@ -80,7 +116,7 @@ class Term:
         them (constraints keep them for their reports)."""
         by_name = {f.name: f for f in fields}
         check_arguments(names, by_name, label)
-        if "n" in names and measure.normals is None:
+        if "n" in names and measure.kind == "cells":
             raise ValueError(f"{label} uses the normal n but is integrated over cells; "
                              "use a facet measure")
         self.label, self.measure = label, measure
@@ -88,14 +124,14 @@ class Term:
         fs = [by_name[k] for k in names if k in by_name]
         for f in fs:
             measure.attach(f)
-        W = measure.weights
-        self.nel, self.nq = W.shape
         self.dim = measure.mesh.dim()
-        n = measure.normals
-        self.has_normal = n is not None
         self.layout = self._record(fs)
         if not self.layout:
-            raise ValueError(f"{label} does not depend on any field")
+            raise ConstantDensity(f"{label} does not depend on any field")
+        W = measure.weights
+        self.nel, self.nq = W.shape
+        n = measure.normals
+        self.has_normal = n is not None
         self.fields = [by_name[name] for name, _, _ in self.layout]
         small, large = CHUNK_POINTS
         self.chunk = max(1, (small if self.nel * self.nq <= small else large) // self.nq)

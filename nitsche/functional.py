@@ -9,7 +9,9 @@ P = [.]_+ for an inequality and the identity for an equality; a penalty
 constraint has lambda = 0, i.e. int_S P(-g)^2 / (2 alpha).  The discrete
 multiplier (contact force) is lambda_N = P(lambda - g / alpha).
 """
+import copy
 import inspect
+import math
 
 import jax.numpy as jnp
 
@@ -34,6 +36,18 @@ def call(fn, names, args):
     return fn(**{k: args[k] for k in names})
 
 
+def _number(value, name, meaning, valid, expected):
+    """value as an int if it is integral (h^2 stays an exact square), else a float;
+    ValueError naming the parameter unless valid(value) and finite."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not (math.isfinite(number) and valid(number)):
+        raise ValueError(f"{name} ({meaning}) must be {expected}, got {value!r}")
+    return int(number) if number.is_integer() else number
+
+
 class Scaling:
     """alpha = alpha0 * h^h_power / stiffness, constant on each cell (h: cell diameter)."""
 
@@ -46,9 +60,15 @@ class Scaling:
             if not alpha0 > 0 or alpha0 == float("inf"):
                 raise ValueError(f"alpha0 must be a positive finite number (got {alpha0}); "
                                  "use alpha0='auto' for a safe fraction of the stability limit")
-        if float(stiffness) <= 0:
-            raise ValueError(f"the stiffness in the scaling must be positive (got {stiffness})")
-        self.alpha0, self.h_power, self.stiffness = alpha0, int(h_power), float(stiffness)
+        self.alpha0 = alpha0
+        self.h_power = _number(h_power, "h_power", "the power k of h in alpha = alpha0 h^k / "
+                               "stiffness", lambda k: k >= 0, "a finite number >= 0")
+        self.stiffness = float(_number(stiffness, "stiffness", "the stiffness in alpha = alpha0 "
+                                       "h^k / stiffness", lambda s: s > 0, "a positive finite number"))
+
+    def resolved(self, alpha0):
+        """A copy with alpha0 given (the resolution of alpha0='auto' by one Problem)."""
+        return Scaling(alpha0, self.h_power, self.stiffness)
 
     @property
     def is_auto(self):
@@ -93,6 +113,12 @@ class Constraint:
         self.multiplier_names = argument_names(multiplier, "the multiplier") \
             if multiplier is not None else ()
         self.names = tuple(dict.fromkeys(self.gap_names + self.multiplier_names))
+
+    def with_scaling(self, scaling):
+        """The same constraint with another scaling (e.g. alpha0='auto' resolved)."""
+        other = copy.copy(self)
+        other.scaling = scaling
+        return other
 
     @property
     def kind(self):

@@ -53,7 +53,7 @@ class Measure:
 
     def __init__(self, mesh, make_basis):
         self.mesh, self._make_basis, self._bases = mesh, make_basis, {}
-        self.basis = None
+        self.basis = self._first = None
 
     def basis_for(self, field, hessian=False):
         """The field's basis at this measure's points (with element-wise Hessians if asked)."""
@@ -66,14 +66,16 @@ class Measure:
         return self._bases[key]
 
     def attach(self, field):
-        """Fix the quadrature from the first field used on this measure."""
-        b = self.basis_for(field)
+        """Fix the quadrature from the first field used on this measure (the same field
+        fixes it again after release())."""
+        self._first = self._first or field
         if self.basis is None:
-            self.basis = b
-        return b
+            self.basis = self.basis_for(self._first)
+        return self.basis_for(field)
 
     def release(self):
-        """Drop the bases built for this measure (terms keep what they need)."""
+        """Drop the bases built for this measure (terms keep what they need; a later
+        attach builds them again)."""
         self._bases.clear()
         self.basis = None
 
