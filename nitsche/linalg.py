@@ -9,6 +9,7 @@ gradients preconditioned by smoothed-aggregation algebraic multigrid (pyamg),
 for large and 3D problems.
 """
 import os
+import warnings
 
 import numpy as np
 import scipy.sparse.linalg as spla
@@ -23,7 +24,19 @@ AMG_THRESHOLD_3D = 150_000  # 'auto' switches to AMG-CG above this many unknowns
 
 
 class IndefiniteHessian(RuntimeError):
-    """The Newton matrix is not positive definite."""
+    """The Newton matrix is not positive definite (or is singular)."""
+
+
+class NotSolved(RuntimeError):
+    """An iterative solve did not reach its tolerance."""
+
+
+def positive_diagonal(A):
+    """A matrix with a non-positive diagonal entry is not positive definite."""
+    d = A.diagonal()
+    if not np.all(d > 0):
+        i = int(np.argmin(np.where(np.isfinite(d), d, -np.inf)))
+        raise IndefiniteHessian(f"diagonal entry {i} of the Newton matrix is {d[i]:.3g}")
 
 
 class Cholmod:
@@ -49,9 +62,11 @@ class Cholmod:
                 self.factor = analyze(A, ordering_method=self.ordering)
             self.factored = None
             self.factor.cholesky_inplace(A)
-            self.factored = A.data.copy()
         except CholmodNotPositiveDefiniteError as e:
             raise IndefiniteHessian(str(e))
+        if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
+            raise IndefiniteHessian("the LDL^T factorization has a non-positive pivot")
+        self.factored = A.data.copy()
         self.factorizations += 1
         self.stale = False
 
@@ -67,6 +82,18 @@ class Cholmod:
                 return x
         self._factor(A)
         return self.factor(b)
+
+    def is_positive_definite(self, A):
+        """Whether A is positive definite: the factor when A is the factored matrix, else a
+        new factorization of A (one numeric factorization: the symbolic analysis is kept)."""
+        A = A.tocsc()
+        if self.factor is not None and np.array_equal(A.data, self.factored):
+            return True
+        try:
+            self._factor(A)
+        except IndefiniteHessian:
+            return False
+        return True
 
     def stats(self):
         return dict(factorizations=self.factorizations, cg_iterations=list(self.iterations))
@@ -109,10 +136,24 @@ class SuperLU:
 
     def solve(self, A, b, rtol=0.0):
         self.factorizations += 1
-        x = spla.splu(A.tocsc()).solve(b)
+        try:
+            x = spla.splu(A.tocsc()).solve(b)
+        except RuntimeError as e:  # "Factor is exactly singular"
+            raise IndefiniteHessian(f"singular Newton matrix ({e})")
         if not np.all(np.isfinite(x)):
             raise IndefiniteHessian("singular Newton matrix")
         return x
+
+    def is_positive_definite(self, A):
+        """Whether A is positive definite: the signs of the pivots of an LU without row
+        pivoting (symmetric ordering, P A P^T = L D L^T, U = D L^T), by Sylvester's law."""
+        self.factorizations += 1
+        try:
+            lu = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                           options=dict(SymmetricMode=True))
+        except RuntimeError:  # a zero pivot: singular
+            return False
+        return bool(np.array_equal(lu.perm_r, lu.perm_c) and np.all(lu.U.diagonal() > 0))
 
 
 class AMGCG:
@@ -153,8 +194,26 @@ class AMGCG:
                           callback=lambda xk: count.__setitem__(0, count[0] + 1))
         return x, info, count[0]
 
+    def is_positive_definite(self, A, iterations=40):
+        """Whether A looks positive definite: LOBPCG (AMG-preconditioned, seeded start)
+        estimates its smallest eigenvalue from above; an estimate <= 0 proves A is not
+        positive definite, a positive one is evidence, not proof."""
+        A = A.tocsr()
+        try:
+            positive_diagonal(A)
+        except IndefiniteHessian:
+            return False
+        if self.ml is None or self.ml.levels[0].A.shape != A.shape:
+            self._build(A)
+        X = np.random.default_rng(0).standard_normal((A.shape[0], 1))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter
+            mu = spla.lobpcg(A, X, M=self.M, largest=False, tol=1e-3, maxiter=iterations)[0]
+        return bool(mu[0] > 0)
+
     def solve(self, A, b, rtol=0.0):
         A = A.tocsr()
+        positive_diagonal(A)
         tol = max(rtol, self.rtol)  # Newton's forcing term, not below our own rtol
         decades = -np.log10(tol)
         if self.ml is None or self.ml.levels[0].A.shape != A.shape:
@@ -173,7 +232,7 @@ class AMGCG:
             self.base_rate = max(fresh, 1) / decades
         self.iterations.append(its)
         if info != 0:
-            raise RuntimeError(f"AMG-preconditioned CG did not converge in {self.maxiter} iterations")
+            raise NotSolved(f"AMG-preconditioned CG did not converge in {self.maxiter} iterations")
         if not np.all(np.isfinite(x)) or b @ x <= 0 < b @ b:
             raise IndefiniteHessian("CG found a direction of non-positive curvature")
         return x
@@ -227,13 +286,13 @@ def make_solver(name="auto", n=0, dim=2):
     CHOLMOD orders 2D problems by AMD alone: its default also tries METIS when the fill is
     large, which on 2D meshes of a million unknowns cost 4.5 s of analysis for a
     factorization no faster."""
+    if not (isinstance(name, str) and (name == "auto" or name in SOLVERS)):
+        raise ValueError(f"solver must be one of auto, {', '.join(SOLVERS)}, not {name!r}")
     if name == "auto":
         if dim == 3 and n > AMG_THRESHOLD_3D:
             name = "amg"
         else:
             name = "cholmod" if HAVE_CHOLMOD else "superlu"
-    if name not in SOLVERS:
-        raise ValueError(f"unknown linear solver {name!r}; choose one of auto, {', '.join(SOLVERS)}")
     if name == "cholmod" and not HAVE_CHOLMOD:
         raise ValueError("solver 'cholmod' needs scikit-sparse (and libsuitesparse-dev); use 'superlu'")
     return Cholmod(ordering="amd" if dim == 2 else "default") if name == "cholmod" else SOLVERS[name]()

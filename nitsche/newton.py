@@ -1,16 +1,47 @@
 """Semismooth Newton's method with a backtracking line search on J_h."""
+import numbers
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .linalg import IndefiniteHessian, make_solver
+from .linalg import IndefiniteHessian, NotSolved, make_solver
 from . import assembly
 
 
 ENERGY_ROUNDOFF = 1e-9  # relative change of J_h below which a full step is judged by the residual
 STAGNATION_STEP = 1e-8  # relative Newton step accepted as converged once the residual stagnates
 FORCING_MAX = 1e-2      # the loosest relative accuracy asked of an iterative linear solve
+ROUNDOFF = 1e-13        # relative accuracy of a gradient summed from terms (about 500 machine epsilons)
+SOLVE_FAILURE = 0.5     # a Newton step with |A dx + g| above this fraction of |g| was not solved
+UNBOUNDED = ("J_h looks unbounded below or singular (a field or rigid-body mode without support, "
+             "a load no support balances, a non-convex energy, or alpha0 above its stability "
+             "limit): add supports, balance the loads, start nearer a minimum (x0) or lower alpha0")
+
+
+def check_options(rtol, maxiter):
+    """maxiter an integer >= 0, rtol in (0, 1): a ValueError naming the option otherwise."""
+    if isinstance(maxiter, bool) or not isinstance(maxiter, numbers.Integral) or maxiter < 0:
+        raise ValueError(f"maxiter (the Newton iteration limit) must be an integer >= 0, not {maxiter!r}")
+    if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0 < rtol < 1:
+        raise ValueError(f"rtol (Newton's relative residual tolerance) must be a number in (0, 1), "
+                         f"e.g. 1e-10, not {rtol!r}")
+
+
+def residual_scale(problem, x_ref, rtol):
+    """The reference residual of the stopping test |grad J_h|_free <= rtol * ref:
+
+        ref = max(|grad J_h(x_ref)|, ROUNDOFF / rtol * S),   S = sum_t |grad J_t(x_ref)|,
+
+    J_t the terms of J_h (energy terms, constraints), all on the free dofs.  The first
+    is the usual scale; the second makes a gradient at round-off of the terms it sums
+    (|grad| <= ROUNDOFF * S) converged, e.g. where the terms cancel at x_ref because it
+    is the solution (two membranes with d = 0).  None if neither is finite and positive."""
+    a = problem.assembler
+    grads = [a.gradient(x_ref, [t])[1][problem.free] for t in a.terms]
+    S = sum(np.linalg.norm(g) for g in grads)
+    ref = max(np.linalg.norm(sum(grads)), ROUNDOFF / rtol * S) if grads else 0.0
+    return ref if np.isfinite(ref) and ref > 0 else None
 
 
 def forcing(residual, rtol):
@@ -72,15 +103,19 @@ class Result:
 def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=None):
     """Minimize J_h from x0 (fixed dofs are set to their values).
 
-    Stops when |grad J_h|_free <= rtol * |grad J_h(x_ref)|_free, x_ref = the
-    initial guess with all free dofs zero, or when a full Newton step is below
-    round-off.  Each step solves H dx = -grad on the free dofs (to the relative
-    accuracy `forcing`: exactly by a fresh factorization, or by CG preconditioned
-    with an earlier one) and backtracks (Armijo) on J_h.  Never returns silently unconverged: see Result.converged.
+    Stops when |grad J_h|_free <= rtol * ref (see residual_scale; x_ref = the initial
+    guess with all free dofs zero), or when a full Newton step is below round-off.
+    Each step solves H dx = -grad on the free dofs (to the relative accuracy `forcing`:
+    exactly by a fresh factorization, or by CG preconditioned with an earlier one) and
+    backtracks (Armijo) on J_h.  A stationary point is reported converged only if it is
+    a minimum: the Hessian on the free dofs positive definite there (the solver's
+    is_positive_definite: a Cholesky factor of that matrix).  Never returns silently
+    unconverged: see Result.converged.
     """
+    check_options(rtol, maxiter)
     t_start = time.perf_counter()
     c0 = assembly.compile_seconds[0]
-    timings = {"assembly": 0.0, "solve": 0.0, "line_search": 0.0}
+    timings = {"assembly": 0.0, "solve": 0.0, "line_search": 0.0, "minimum_check": 0.0}
     x = problem.initial(x0)
     free = problem.free
     lin = make_solver(solver, free.size, problem.dim)
@@ -93,8 +128,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
                          "and the initial guess x0")
     x_ref = problem.initial(np.zeros(problem.ndofs))
     x_ref[free] = 0.0
-    ref = np.linalg.norm(problem.gradient(x_ref)[free])
-    if not (np.isfinite(ref) and ref > 0):  # e.g. a density undefined at zero: scale by x0
+    ref = residual_scale(problem, x_ref, rtol)
+    if ref is None:  # e.g. a density undefined at zero, or nothing but zeros: scale by x0
         ref = np.linalg.norm(g0[free]) or 1.0
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
     for it in range(maxiter + 1):
@@ -102,7 +137,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         E, g, A = problem.newton_system(x)
         timings["assembly"] += time.perf_counter() - t
         if not np.isfinite(E) or not np.all(np.isfinite(g)):
-            reason = "the energy or its gradient is not finite"
+            reason = (f"J_h or its gradient became non-finite at iteration {it} "
+                      f"(largest |x| {np.abs(x).max():.3g}; {problem.non_finite(x)}): {UNBOUNDED}")
             break
         res = np.linalg.norm(g)
         residuals.append(res / ref)
@@ -118,13 +154,22 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         try:
             dx = lin.solve(A, -g, rtol=forcing(res / ref, rtol))
         except IndefiniteHessian as e:
-            reason = ("the Hessian is not positive definite (alpha0 above the stability limit, "
-                      f"or a singular problem): {e}")
+            reason = f"the Hessian of J_h is not positive definite at iteration {it} ({e}): {UNBOUNDED}"
             break
-        timings["solve"] += time.perf_counter() - t
+        except NotSolved as e:
+            reason = f"the Newton system could not be solved at iteration {it} ({e}): {UNBOUNDED}"
+            break
+        finally:
+            timings["solve"] += time.perf_counter() - t
+        solve_residual = np.linalg.norm(A @ dx + g) / res
+        if not solve_residual <= SOLVE_FAILURE:
+            reason = (f"the Newton matrix is singular to working precision at iteration {it} "
+                      f"(step {np.linalg.norm(dx):.3g}, relative residual of its solve "
+                      f"{solve_residual:.2g}): {UNBOUNDED}")
+            break
         slope = float(g @ dx)
         if not slope < 0:
-            reason = "the Newton direction is not a descent direction: the Hessian is indefinite"
+            reason = f"the Newton direction is not a descent direction at iteration {it}: {UNBOUNDED}"
             break
         if (len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
                 and np.linalg.norm(dx) <= STAGNATION_STEP * max(np.linalg.norm(x[free]), 1e-300)):
@@ -150,7 +195,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
                 break  # J_h is flat to round-off here (1/alpha ~ h^-4): judge the step by the residual
             step *= 0.5
         else:
-            reason = "the line search found no decrease of J_h"
+            reason = (f"the line search found no decrease of J_h at iteration {it} "
+                      f"(Newton step {np.linalg.norm(dx):.3g}): {UNBOUNDED}")
             timings["line_search"] += time.perf_counter() - t
             break
         timings["line_search"] += time.perf_counter() - t
@@ -160,6 +206,14 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             it += 1
             residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
             break
+    if converged:
+        t = time.perf_counter()
+        if not lin.is_positive_definite(A):
+            converged, reason = False, (
+                f"stationary point that is not a minimum: the Hessian of J_h on the free dofs is "
+                f"not positive definite there ({reason}); start elsewhere (x0), or, if J_h should "
+                "be convex, check the supports and that alpha0 is below its stability limit")
+        timings["minimum_check"] = time.perf_counter() - t
     timings["compile"] = assembly.compile_seconds[0] - c0
     seconds = time.perf_counter() - t_start
     report = problem.constraint_report(x)

@@ -1,0 +1,117 @@
+"""Newton's honesty: checked options, minima only, round-off scales, unbounded problems."""
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from skfem import MeshTri, ElementTriP1
+
+import nitsche as ni
+from nitsche.linalg import HAVE_CHOLMOD, Cholmod, IndefiniteHessian
+from nitsche.ops import dot, grad, lap
+
+SOLVERS = ["cholmod", "superlu", "amg"] if HAVE_CHOLMOD else ["superlu", "amg"]
+
+
+def membrane(fixed="boundary"):
+    return ni.Field("u", MeshTri().refined(3), ElementTriP1(), fixed=fixed)
+
+
+def two_membranes(d):
+    """Two membranes pressed together by f1 = 1, f2 = -1 across the gap d (the case's J_h, P1)."""
+    mesh = MeshTri().refined(2)
+    u1 = ni.Field("u1", mesh, ElementTriP1(), fixed="boundary")
+    u2 = ni.Field("u2", mesh, ElementTriP1(), fixed="boundary")
+    energy = lambda u1, u2: (0.5 * dot(grad(u1), grad(u1)) + dot(grad(u2), grad(u2)) - u1 + u2)
+    contact = ni.Inequality(lambda u1, u2: u2 + d - u1, lambda u1: 1.0 + lap(u1),
+                            ni.Scaling(0.1, 2), ni.cells(u1, intorder=4))
+    return ni.Problem([u1, u2], energy, [contact], alpha0_limits={"contact": np.inf})
+
+
+# -- 1. options --------------------------------------------------------------------
+
+@pytest.mark.parametrize("option,value", [("maxiter", -1), ("maxiter", 2.5), ("maxiter", True),
+                                          ("rtol", 10.0), ("rtol", 0.0), ("rtol", 1.0),
+                                          ("rtol", float("nan")), ("rtol", "1e-8"),
+                                          ("solver", "magic"), ("solver", None)])
+def test_bad_newton_options_are_one_line_errors_naming_the_option(option, value):
+    p = ni.Problem([membrane()], lambda u: 0.5 * dot(grad(u), grad(u)) - u)
+    with pytest.raises(ValueError, match=rf"^{option} .*must be") as e:
+        p.minimize(**{option: value})
+    assert "\n" not in str(e.value)
+
+
+def test_good_newton_options_still_run():
+    p = ni.Problem([membrane()], lambda u: 0.5 * dot(grad(u), grad(u)) - u)
+    assert p.minimize(maxiter=np.int64(5), rtol=0.5).converged
+    r = p.minimize(maxiter=0)
+    assert not r.converged and "iteration limit 0" in r.reason
+
+
+# -- 2. a converged minimization is a minimum -------------------------------------------
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_double_well_started_at_its_saddle_is_not_converged(solver):
+    u = membrane(fixed=None)
+    energy = lambda u: (u.value ** 2 - 1) ** 2 + 1e-3 * dot(grad(u), grad(u))
+    r = ni.minimize(energy, [u], solver=solver)  # u = 0: grad J = 0, Hessian -4 M + 2e-3 K
+    assert r.iterations == 0 and not r.converged
+    assert r.reason.startswith("stationary point that is not a minimum")
+    assert "start elsewhere" in r.reason
+    with pytest.raises(ni.NotConverged):
+        r.check()
+    # from a point off the saddle Newton finds a minimum (u = +-1) and says so
+    u = membrane(fixed=None)
+    r = ni.minimize(energy, [u], x0=np.full(u.ndofs, 0.8), solver=solver)
+    assert r.converged and np.allclose(r.x, 1.0)
+
+
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_cholmod_rejects_an_indefinite_matrix_also_in_simplicial_ldlt():
+    A = sp.csc_matrix(np.array([[-2.0, 0.5], [0.5, 1.0]]))
+    with pytest.raises(IndefiniteHessian):
+        Cholmod().solve(A, np.ones(2))
+    assert not Cholmod().is_positive_definite(A)
+
+
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_positive_definiteness_from_the_factor_or_a_new_factorization():
+    n = 200
+    F = sp.diags([np.full(n - 1, -1.0), np.full(n, 2.1), np.full(n - 1, -1.0)], [-1, 0, 1]).tocsc()
+    lin = Cholmod()
+    lin.solve(F, np.ones(n))
+    assert lin.is_positive_definite(F) and lin.factorizations == 1  # the factor of F itself
+    for shift in (-0.05, -3.0):
+        A = (F + sp.diags(np.where(np.arange(n) == 20, shift, 0.0))).tocsc()
+        assert lin.is_positive_definite(A) == (np.linalg.eigvalsh(A.toarray()).min() > 0)
+    assert lin.factorizations == 2  # -0.05: factored; -3.0: the factorization failed
+
+
+# -- 3. the solution is the initial guess ------------------------------------------------
+
+def test_a_problem_solved_by_its_initial_guess_converges():
+    p = two_membranes(d=0.0)  # the loads cancel across the contact: u1 = u2 = 0
+    r = p.minimize()
+    assert r.converged and r.iterations <= 1, r.reason
+    assert np.abs(r.x).max() <= 1e-12
+
+
+def test_the_stopping_test_of_a_normal_problem_is_unchanged():
+    from nitsche.newton import residual_scale
+    p = two_membranes(d=0.05)
+    x_ref = p.initial(None)
+    assert residual_scale(p, x_ref, 1e-10) == pytest.approx(np.linalg.norm(p.gradient(x_ref)[p.free]))
+    r = p.minimize()
+    assert r.converged and r.residuals[0] == pytest.approx(1.0) and r.residuals[-1] <= 1e-10
+
+
+# -- 5. unbounded problems ------------------------------------------------------------------
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("fixed,energy", [
+    (None, lambda u: 0.5 * dot(grad(u), grad(u)) - u),   # no support: the constant is free
+    ("boundary", lambda u: -u.value ** 4 - u),            # unbounded below, singular at 0
+])
+def test_an_unbounded_problem_says_it_looks_unbounded(solver, fixed, energy):
+    r = ni.minimize(energy, [membrane(fixed)], solver=solver)
+    assert not r.converged
+    assert "looks unbounded below or singular" in r.reason
+    assert "add supports" in r.reason
