@@ -11,6 +11,7 @@ import time
 
 from .io import write_json, write_vtu
 from .plot import plot_convergence, plot_solution
+from .reactions import reactions
 from .study import StudyFailed, run_study, solve_nested, table
 
 
@@ -53,7 +54,8 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False):
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
                 seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
                 solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p),
-                alpha0_limits=limits, constraints=result.constraints, errors=errors)
+                alpha0_limits=limits, constraints=result.constraints, errors=errors,
+                reactions=reactions(problem, result.x))
     if failure and reached < level:
         data["reason"] = f"level {failure['level']}: {failure['reason']}"
     extra = getattr(case.module, "report", None)

@@ -2,12 +2,12 @@
 import json
 import os
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from skfem import ElementTriP1, MeshTri
 
 import nitsche as ni
-from nitsche.cases import load
 from nitsche.cli import main
 from nitsche.ops import dot, grad
 
@@ -29,20 +29,16 @@ def test_new_refuses_to_overwrite_and_bad_names(block, capsys):
 
 
 def test_template_case_runs_and_balances_the_load(block, tmp_path):
-    """Run through the CLI; the floor force equals the force the top exerts (to round-off):
-    the reaction at the held top dofs is the gradient of J there."""
-    assert main(["run", "block.py", "--level", "2", "--out", "o"]) == 0
-    data = json.loads((tmp_path / "o" / "result.json").read_text())
-    assert data["case"] == "block" and data["converged"] and data["level_reached"] == 2
-    case = load("block.py")
-    p = case.parameters()
-    problem = case.problem(2, 1, p, case.alpha0_limits(1, p))
-    result = problem.minimize().check()
-    g = problem.assembler.gradient(result.x, problem.energy_terms)[1]
-    y_dofs = problem.fields[0].basis.nodal_dofs[1]
-    top = np.intersect1d(problem.fixed, y_dofs)
-    assert data["floor_force"] == pytest.approx(-g[top].sum(), rel=1e-8)
-    assert data["floor_force"] > 0
+    """Run through the CLI; the floor force balances the reaction of the held top (the
+    gradient of J_h at its fixed dofs) to round-off, P1 and P2."""
+    for degree in ("1", "2"):
+        assert main(["run", "block.py", "--level", "2", "--degree", degree, "--out", "o"]) == 0
+        data = json.loads((tmp_path / "o" / "result.json").read_text())
+        assert data["case"] == "block" and data["converged"] and data["level_reached"] == 2
+        rx, ry = data["reactions"]["u"]["all"]
+        assert data["floor_force"] > 0.02
+        assert ry == pytest.approx(-data["floor_force"], rel=1e-10)
+        assert abs(rx) < 1e-12 * data["floor_force"]
 
 
 def test_template_case_study_and_help(block, tmp_path, capsys):
@@ -90,3 +86,22 @@ def test_nested_iteration_for_a_problem_of_ones_own():
     direct = make(3).minimize().check()
     assert result.converged and np.allclose(result.x, direct.x, atol=1e-10)
     assert result.iterations < direct.iterations
+
+
+def test_reactions_per_named_boundary_and_component():
+    """A bar on [0, 1] x [0, 0.25] held at x = 0 (both components) and pulled by a traction
+    t = (1, 0.5) on x = 1: the reaction of 'left' is -(t * 0.25), exactly (P1 and P2)."""
+    from skfem import ElementTriP2, ElementVector
+    from nitsche.ops import sym_grad
+    from nitsche.reactions import reactions
+    for element in (ElementTriP1(), ElementTriP2()):
+        mesh = MeshTri.init_tensor(np.linspace(0, 1, 9), np.linspace(0, 0.25, 3)).with_boundaries(
+            {"left": lambda x: x[0] < 1e-12, "right": lambda x: x[0] > 1 - 1e-12})
+        u = ni.Field("u", mesh, ElementVector(element), fixed="left")
+        energy = [ni.Integral(lambda u: (sym_grad(u) ** 2).sum() + 0.5 * jnp.trace(sym_grad(u)) ** 2,
+                              ni.cells(u)),
+                  ni.Integral(lambda u: -(u.value[0] + 0.5 * u.value[1]), ni.facets(u, "right"))]
+        problem = ni.Problem([u], energy)
+        R = reactions(problem, problem.minimize().check().x)["u"]
+        assert R["left"] == pytest.approx([-0.25, -0.125], abs=1e-12)
+        assert R["all"] == pytest.approx(R["left"], abs=1e-14) and "right" not in R
