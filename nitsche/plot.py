@@ -4,6 +4,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.tri as mtri  # noqa: E402
+from matplotlib.ticker import NullFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .io import vertex_values  # noqa: E402
@@ -16,31 +17,71 @@ def _triangulation(mesh):
     return mtri.Triangulation(mesh.p[0], mesh.p[1], t)
 
 
-def plot_solution(problem, result, path, title=""):
-    """One panel per 2D scalar field and one per constraint (its discrete multiplier)."""
-    parts = problem.split(result.x)
-    scal = [f for f in problem.fields if f.is_lagrange and f.mesh.dim() == 2
-            and vertex_values(f, parts[f.name]).ndim == 1]
-    values = problem.constraint_values(result.x)
-    n = len(scal) + len(problem.constraints)
-    fig, axes = plt.subplots(1, max(n, 1), figsize=(4.6 * max(n, 1), 4.0), squeeze=False)
-    axes = axes[0]
-    for ax, f in zip(axes, scal):
-        im = ax.tripcolor(_triangulation(f.mesh), vertex_values(f, parts[f.name]), shading="gouraud",
-                          cmap="viridis")
-        fig.colorbar(im, ax=ax, shrink=0.8)
-        ax.set_title(f"{f.name}")
-    for ax, c in zip(axes[len(scal):], problem.constraints):
-        v = values[c.name]
-        xq = v["x"].reshape(-1, v["x"].shape[-1])
-        lam = v["multiplier"].ravel()
-        if xq.shape[1] >= 2:
-            order = np.argsort(lam)
-            sc = ax.scatter(xq[order, 0], xq[order, 1], c=lam[order], s=4, cmap="magma")
-            fig.colorbar(sc, ax=ax, shrink=0.8)
-        ax.set_title(f"{c.name}: multiplier $\\lambda_N$")
-    for ax in axes:
+def _deformation_scale(mesh, d):
+    """A factor that shows the largest displacement as 10 % of the body's size."""
+    size = float(np.ptp(mesh.p, axis=1).max())
+    peak = float(np.abs(d).max())
+    return 0.1 * size / peak if peak > 0 else 1.0
+
+
+def _scalar_panel(fig, ax, f, values):
+    im = ax.tripcolor(_triangulation(f.mesh), values, shading="gouraud", cmap="viridis")
+    fig.colorbar(im, ax=ax, shrink=0.8, label=f.name)
+    ax.set_title(f.name)
+    ax.set_aspect("equal")
+
+
+def _vector_panel(fig, ax, f, d):
+    """The deformed mesh, coloured by the displacement's magnitude."""
+    scale = _deformation_scale(f.mesh, d)
+    mesh = f.mesh
+    tri = _triangulation(mesh)
+    moved = mtri.Triangulation(mesh.p[0] + scale * d[:, 0], mesh.p[1] + scale * d[:, 1],
+                               tri.triangles)
+    ax.triplot(tri, lw=0.3, color="0.7")
+    im = ax.tripcolor(moved, np.linalg.norm(d, axis=1), shading="gouraud", cmap="viridis")
+    fig.colorbar(im, ax=ax, shrink=0.8, label=f"|{f.name}|")
+    ax.set_title(f"{f.name}: deformed shape (x{scale:.3g}; grey: undeformed)")
+    ax.set_aspect("equal")
+
+
+def _multiplier_panel(fig, ax, name, v):
+    """lambda_N against the coordinate along a contact line, or coloured points on an area."""
+    xq = v["x"].reshape(-1, v["x"].shape[-1])
+    lam = v["multiplier"].ravel()
+    spread = np.ptp(xq, axis=0)
+    if xq.shape[1] >= 2 and np.sort(spread)[-2] <= 1e-9 * max(spread.max(), 1e-300):
+        axis = int(np.argmax(spread))  # a straight contact line: a graph over it
+        order = np.argsort(xq[:, axis])
+        ax.plot(xq[order, axis], lam[order], ".-", ms=3)
+        ax.set_xlabel("xyz"[axis])
+        ax.set_ylabel(r"$\lambda_N$")
+        ax.grid(alpha=0.3)
+    elif xq.shape[1] >= 2:
+        order = np.argsort(lam)
+        sc = ax.scatter(xq[order, 0], xq[order, 1], c=lam[order], s=4, cmap="magma")
+        fig.colorbar(sc, ax=ax, shrink=0.8, label=r"$\lambda_N$")
         ax.set_aspect("equal")
+    ax.set_title(f"{name}: multiplier $\\lambda_N$ (contact pressure)")
+
+
+def plot_solution(problem, result, path, title=""):
+    """One panel per 2D Lagrange field (scalar: its values; vector: the deformed shape) and
+    one per constraint (its discrete multiplier lambda_N at the quadrature points)."""
+    parts = problem.split(result.x)
+    shown = [(f, vertex_values(f, parts[f.name])) for f in problem.fields
+             if f.is_lagrange and f.mesh.dim() == 2]
+    values = problem.constraint_values(result.x)
+    n = len(shown) + len(problem.constraints)
+    fig, axes = plt.subplots(1, max(n, 1), figsize=(4.8 * max(n, 1), 4.2), squeeze=False)
+    axes = axes[0]
+    for ax, (f, d) in zip(axes, shown):
+        (_scalar_panel if d.ndim == 1 else _vector_panel)(fig, ax, f, d)
+    for ax, c in zip(axes[len(shown):], problem.constraints):
+        _multiplier_panel(fig, ax, c.name, values[c.name])
+    for ax in axes[:len(shown)]:
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
     if title:
         fig.suptitle(title)
     fig.tight_layout()
@@ -53,8 +94,8 @@ def plot_convergence(rows, path, rate=None, title=""):
     """Successive differences (and errors) against h, log-log, with the reference slope."""
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
     h = np.array([r["h"] for r in rows])
-    series = [("difference", "successive difference $E_k$")]
-    series += [(k, k.replace("error_", "error ")) for k in rows[0] if k.startswith("error_")]
+    series = [("difference", "successive difference $E_k$ (energy norm)")]
+    series += [(k, k.replace("error_", "error, ") + " norm") for k in rows[0] if k.startswith("error_")]
     for key, label in series:
         pts = [(r["h"], r[key]) for r in rows if r.get(key)]
         if pts:
@@ -65,7 +106,9 @@ def plot_convergence(rows, path, rate=None, title=""):
             h0, e0 = ref[-1]
             ax.loglog(h, e0 * (h / h0) ** rate, "k--", label=f"slope {rate:g}")
     ax.set_xlabel("h (cell diameter)")
-    ax.set_ylabel("energy norm")
+    ax.set_ylabel("error or successive difference")
+    ax.set_xticks(h, [f"{v:.3g}" for v in h])
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     ax.set_title(title)
