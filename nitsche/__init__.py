@@ -24,7 +24,7 @@ from .fields import Field  # noqa: E402
 from .measures import cells, facets, interface  # noqa: E402
 from .functional import Scaling, Integral, Equality, Inequality, Penalty, Constraint  # noqa: E402
 from .problem import Problem, StabilityWarning  # noqa: E402
-from .newton import Result, NotConverged  # noqa: E402
+from .newton import Result, NotConverged, FeasibilityWarning  # noqa: E402
 from .jets import DerivativeError  # noqa: E402
 from .study import nested, prolongate  # noqa: E402
 from . import ops  # noqa: E402
@@ -37,4 +37,5 @@ def minimize(energy, fields, constraints=(), x0=None, **options):
 
 __all__ = ["Field", "cells", "facets", "interface", "Scaling", "Integral", "Equality", "Inequality",
            "Penalty", "Constraint", "Problem", "Result", "NotConverged", "StabilityWarning",
+           "FeasibilityWarning",
            "DerivativeError", "ops", "minimize", "nested", "prolongate"]

@@ -1,6 +1,7 @@
 """Semismooth Newton's method with a backtracking line search on J_h."""
 import numbers
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -55,9 +56,15 @@ class NotConverged(RuntimeError):
     """Raised by Result.check() when Newton's method did not converge."""
 
 
+class FeasibilityWarning(UserWarning):
+    """A constraint is violated far beyond the discretization level: it looks infeasible
+    (see Problem.constraint_report)."""
+
+
 @dataclass
 class Result:
-    """What a Newton run did: solution, convergence, constraint report and timings."""
+    """What a Newton run did: solution, convergence, constraint report and timings.
+    feasible: no constraint looks infeasible (the reports' `infeasible` flags)."""
     x: np.ndarray
     converged: bool
     reason: str
@@ -67,6 +74,7 @@ class Result:
     active_count: int = 0
     contact_measure: float = 0.0
     max_violation: float = 0.0
+    feasible: bool = True
     seconds: float = 0.0
     timings: dict = field(default_factory=dict)
     solver: str = ""
@@ -92,7 +100,9 @@ class Result:
                  "  residuals: " + " ".join(f"{r:.2e}" for r in self.residuals),
                  f"  energy J_h = {self.energy:.12g}",
                  f"  active points {self.active_count}, contact measure {self.contact_measure:.6g}, "
-                 f"largest violation {self.max_violation:.3e}",
+                 f"largest violation {self.max_violation:.3e}"
+                 + ("" if self.feasible else ", INFEASIBLE: " + ", ".join(
+                     n for n, r in self.constraints.items() if r["infeasible"])),
                  "  seconds: " + ", ".join(f"{k} {v:.3f}" for k, v in self.timings.items())
                  + f", total {self.seconds:.3f}",
                  "  linear solver: " + ", ".join(f"{k.replace('_', ' ')} {v}"
@@ -217,6 +227,14 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     timings["compile"] = assembly.compile_seconds[0] - c0
     seconds = time.perf_counter() - t_start
     report = problem.constraint_report(x)
+    infeasible = [name for name, r in report.items() if r["infeasible"]]
+    for name in infeasible if converged else ():
+        r = report[name]
+        warnings.warn(f"constraint '{name}' looks infeasible: its largest violation "
+                      f"{r['max_violation']:.3g} exceeds {r['violation_limit']:.3g} (min(1/2, 5 alpha0) "
+                      "times the size of its fields), far beyond the discretization level; check "
+                      "its data (e.g. an obstacle above the boundary values, a gap that cannot close)",
+                      FeasibilityWarning)
     return Result(x=x, converged=converged, reason=reason, iterations=it, residuals=residuals,
                   energy=problem.energy(x), seconds=seconds, timings=timings, solver=lin.name,
                   solver_stats=lin.stats(),
@@ -224,4 +242,5 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
                   active_count=sum(r["active_count"] for r in report.values()),
                   contact_measure=sum(r["contact_measure"] for r in report.values()
                                       if r["kind"] != "equality"),
-                  max_violation=max([r["max_violation"] for r in report.values()], default=0.0))
+                  max_violation=max([r["max_violation"] for r in report.values()], default=0.0),
+                  feasible=not infeasible)

@@ -274,21 +274,40 @@ class Problem:
             else "the terms of J_h are finite but their sum overflows: check the magnitudes of the loads/parameters"
 
     def constraint_report(self, x):
-        rep = {}
+        """Per constraint: kind, alpha0, active points and contact measure, the largest
+        violation v (of g >= 0, or |g| for g = 0) and the multiplier lambda_N; and whether
+        the constraint looks infeasible.  At an active point the Nitsche violation is
+        -g = alpha (lambda_N - lambda): a feasible problem's lambda_N is a multiplier a
+        discrete field of size U (max |u| over the fields of g) can exert, at most
+        ~ stiffness U / h^k, so v <~ alpha0 U, and v -> 0 with h; an infeasible one (an
+        obstacle above the boundary values, a gap that cannot be met) keeps v ~ U and
+        lambda_N ~ v / alpha -> oo.  Flagged: at the most violated point
+            v > violation_limit = min(1/2, 5 alpha0) U   and   v > 2 alpha |lambda(u_h)|
+        (the second: the violation is not the consistency term alpha (lambda - lambda_N)
+        with lambda_N ~ lambda; it also keeps round-off of a zero solution unflagged)."""
+        rep, values, parts = {}, self.constraint_values(x), self.split(x)
         for c in self.constraints:
-            v = self.constraint_values(x)[c.name]
+            v = values[c.name]
             if c.inequality:
                 active = v["multiplier"] > 0
-                viol = float(np.max(np.maximum(-v["g"], 0.0)))
+                violation = np.maximum(-v["g"], 0.0)
             else:
                 active = np.zeros_like(v["g"], bool)
-                viol = float(np.max(np.abs(v["g"])))
+                violation = np.abs(v["g"])
+            worst = np.unravel_index(np.argmax(violation), violation.shape)
+            viol = float(violation[worst])
+            size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
+                       default=0.0)
+            limit = min(0.5, 5 * c.scaling.alpha0) * size
+            consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * v["lam"], violation.shape)[worst]))
             rep[c.name] = dict(kind=c.kind, alpha0=c.scaling.alpha0,
                                active_count=int(active.sum()),
                                contact_measure=float((v["W"] * active).sum()),
                                max_violation=viol,
                                peak_multiplier=float(np.max(v["multiplier"])),
-                               total_multiplier=float((v["W"] * v["multiplier"]).sum()))
+                               total_multiplier=float((v["W"] * v["multiplier"]).sum()),
+                               violation_limit=limit,
+                               infeasible=bool(viol > limit and viol > consistency))
         return rep
 
 

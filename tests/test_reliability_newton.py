@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 import scipy.sparse as sp
-from skfem import MeshTri, ElementTriP1
+from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
 from nitsche.linalg import HAVE_CHOLMOD, Cholmod, IndefiniteHessian
@@ -101,6 +101,53 @@ def test_the_stopping_test_of_a_normal_problem_is_unchanged():
     assert residual_scale(p, x_ref, 1e-10) == pytest.approx(np.linalg.norm(p.gradient(x_ref)[p.free]))
     r = p.minimize()
     assert r.converged and r.residuals[0] == pytest.approx(1.0) and r.residuals[-1] <= 1e-10
+
+
+# -- 4. infeasible constraints -------------------------------------------------------------
+
+def obstacle_above_the_boundary(degree, level=1, psi=0.3):
+    """A membrane fixed at u = 0 on the boundary of (-2, 2)^2 over the obstacle psi > 0."""
+    mesh = MeshTri.init_symmetric().scaled((4, 4)).translated((-2, -2)).refined(level + 2)
+    u = ni.Field("u", mesh, ElementTriP1() if degree == 1 else ElementTriP2(), fixed="boundary")
+    contact = ni.Inequality(lambda u: u - psi, lambda u: -lap(u), ni.Scaling("auto", 2),
+                            ni.cells(u, intorder=2 * degree + 2))
+    return ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)), [contact])
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_an_obstacle_above_the_boundary_values_is_flagged_infeasible(degree):
+    p = obstacle_above_the_boundary(degree)
+    with pytest.warns(ni.FeasibilityWarning, match="constraint 'contact' looks infeasible"):
+        r = p.minimize()
+    assert r.converged and not r.feasible and "INFEASIBLE: contact" in r.report()
+    c = r.constraints["contact"]
+    assert c["infeasible"] and c["max_violation"] > c["violation_limit"] > 0
+    assert c["max_violation"] > 0.5 * 0.3  # psi - u = 0.3 at the boundary: not shrinking with h
+
+
+def test_a_feasible_obstacle_is_not_flagged():
+    p = obstacle_above_the_boundary(2, psi=-0.1)  # below the boundary values: no contact
+    r = p.minimize()
+    assert r.converged and r.feasible and not r.constraints["contact"]["infeasible"]
+
+
+@pytest.mark.parametrize("name,degree", [("obstacle", 1), ("obstacle", 2), ("signorini", 1),
+                                         ("signorini", 2), ("two-membrane", 2),
+                                         ("elastic-contact", 1), ("dirichlet", 1)])
+def test_the_shipped_cases_are_feasible_at_every_level(name, degree):
+    import importlib
+    import warnings
+    from nitsche.case import Case
+    case = Case(importlib.import_module("nitsche.cases." + name.replace("-", "_")))
+    p = case.parameters()
+    limits = case.alpha0_limits(degree, p)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ni.FeasibilityWarning)
+        results = [r for _, _, r in ni.nested(lambda k: case.problem(k, degree, p, limits), range(4))]
+    assert len(results) == 4 and all(r.converged and r.feasible for r in results)
+    for r in results[1:]:
+        for c in r.constraints.values():  # with a margin: the largest violation is far below the limit
+            assert not c["infeasible"] and c["max_violation"] < 0.5 * c["violation_limit"]
 
 
 # -- 5. unbounded problems ------------------------------------------------------------------
