@@ -6,7 +6,9 @@ import os
 
 from skfem.io.meshio import to_meshio
 import numpy as np
-from skfem import ElementVector
+from skfem import Basis, ElementVector
+
+from .locate import probes
 
 
 def write_json(path, data):
@@ -64,8 +66,29 @@ def vertex_multiplier(problem, values, mesh):
     return out
 
 
+def point_values(field, u, mesh):
+    """The field's values at the vertices of `mesh` (its own mesh, or a refinement of it):
+    (n,) or (n, components).  Vertex dofs where they are the values (P1, Q1), else the
+    function evaluated at the points (P2, Morley, BFS, ...)."""
+    comps = field.mesh.dim() if isinstance(field.element, ElementVector) else 1
+    if mesh is field.mesh and field.is_lagrange and field.ndofs == comps * mesh.nvertices:
+        return vertex_values(field, u)
+    v = (probes(field.basis, mesh.p) @ u).reshape(comps, -1) if field.is_lagrange else \
+        field.jets_at(np.asarray(u, dtype=float), mesh.p)["value"][None]
+    return v[0] if comps == 1 else v.T
+
+
+def output_mesh(mesh, fields):
+    """The mesh a VTU is written on: `mesh` where vertex values say everything (P1, Q1),
+    else `mesh` refined once, so that P2 (and Morley, BFS) fields show their curvature."""
+    vertex_only = all(f.is_lagrange and f.ndofs in (f.mesh.nvertices, f.mesh.dim() * f.mesh.nvertices)
+                      for f in fields)
+    return mesh if vertex_only else mesh.refined(1)
+
+
 def write_vtu(path_prefix, problem, x):
-    """One .vtu per mesh: point data named after the fields plus the contact pressure."""
+    """One .vtu per mesh: point data named after the fields (every element kind) plus the
+    contact pressure of the constraints on that mesh."""
     parts = problem.split(x)
     values = problem.constraint_values(x)
     meshes = []
@@ -74,11 +97,16 @@ def write_vtu(path_prefix, problem, x):
             meshes.append(f.mesh)
     paths = []
     for i, mesh in enumerate(meshes):
-        data = {f.name: vertex_values(f, parts[f.name]) for f in problem.fields
-                if f.mesh is mesh and f.is_lagrange}
-        data.update(vertex_multiplier(problem, values, mesh))
+        fields = [f for f in problem.fields if f.mesh is mesh]
+        out_mesh = output_mesh(mesh, fields)
+        data = {f.name: point_values(f, parts[f.name], out_mesh) for f in fields}
+        pressure = vertex_multiplier(problem, values, mesh)
+        if out_mesh is not mesh and pressure:  # P1 interpolation of the vertex averages
+            P = probes(Basis(mesh, mesh.elem()), out_mesh.p)  # vertex values are its dofs
+            pressure = {k: P @ v for k, v in pressure.items()}
+        data.update(pressure)
         path = f"{path_prefix}.vtu" if len(meshes) == 1 else f"{path_prefix}_{i}.vtu"
-        out = to_meshio(mesh, point_data=data)
+        out = to_meshio(out_mesh, point_data=data)
         if out.points.shape[1] == 2:  # VTK points are 3D
             out.points = np.c_[out.points, np.zeros(len(out.points))]
         out.write(path)

@@ -105,3 +105,32 @@ def test_reactions_per_named_boundary_and_component():
         R = reactions(problem, problem.minimize().check().x)["u"]
         assert R["left"] == pytest.approx([-0.25, -0.125], abs=1e-12)
         assert R["all"] == pytest.approx(R["left"], abs=1e-14) and "right" not in R
+
+
+def test_vtu_shows_every_field_of_every_element_kind(tmp_path):
+    """P2: written on the once-refined mesh, whose vertices are the P2 nodes, so the point
+    data are the dofs themselves; Morley (plate-plate) and BFS (plate-unilateral) by
+    evaluation, matching the solution's values at the vertices."""
+    import meshio
+    from nitsche.cases import get
+    from nitsche.io import write_vtu
+    for name, degree, level in (("obstacle", 2, 1), ("plate-plate", 2, 0), ("plate-unilateral", 3, 0)):
+        case = get(name)
+        p = case.parameters()
+        problem = case.problem(level, degree, p, case.alpha0_limits(degree, p))
+        x = problem.minimize().check().x
+        (path,) = write_vtu(str(tmp_path / name), problem, x)
+        m = meshio.read(path)
+        for f in problem.fields:
+            data = m.point_data[f.name]
+            assert np.all(np.isfinite(data)) and np.ptp(data) > 0
+            u = problem.split(x)[f.name]
+            at = f.jets_at(u, m.points[:, :2].T.copy())["value"] if not f.is_lagrange else None
+            if f.is_lagrange:  # P2: the output points are the P2 nodes, the data their dofs
+                dof_at = {tuple(np.round(q, 12)): v for q, v in zip(f.basis.doflocs.T, u)}
+                assert len(m.points) == len(dof_at) == f.ndofs
+                assert np.allclose([dof_at[tuple(np.round(q[:2], 12))] for q in m.points], data,
+                                   atol=1e-12)
+            else:
+                assert np.allclose(data, at, atol=1e-12)
+        assert any(k.endswith("_pressure") for k in m.point_data)
