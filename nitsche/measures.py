@@ -7,6 +7,11 @@ and for each field the tabulation of its basis functions and local dofs.
 
 The mesh size is the cell diameter (largest distance between two vertices);
 for a boundary facet it is the diameter of the cell that owns the facet.
+
+A measure may carry a weight w(x) >= 0, W[e, q] = quadrature weight x Jacobian x w(x_q):
+e.g. 2 pi x[0] for an axisymmetric problem in (r, z), or a plate's thickness.  Every
+integral on the measure sees it: the energy, the constraints, the stability limit of
+alpha0 and the reported forces.
 """
 import weakref
 
@@ -51,9 +56,12 @@ class Measure:
 
     kind = "measure"
 
-    def __init__(self, mesh, make_basis):
+    def __init__(self, mesh, make_basis, weight=None):
+        if weight is not None and not callable(weight):
+            raise TypeError(f"weight must be a function of the point x, not {weight!r}")
         self.mesh, self._make_basis, self._bases = mesh, make_basis, {}
         self.basis = self._first = None
+        self.weight = weight
 
     def basis_for(self, field, hessian=False):
         """The field's basis at this measure's points (with element-wise Hessians if asked)."""
@@ -81,7 +89,15 @@ class Measure:
 
     @property
     def weights(self):
-        return np.asarray(self.basis.dx)
+        """W[e, q] = quadrature weight x Jacobian (x the measure's weight w(x))."""
+        W = np.asarray(self.basis.dx)
+        if self.weight is None:
+            return W
+        w = np.broadcast_to(np.asarray(self.weight(self.points), dtype=float), W.shape)
+        if not np.all(np.isfinite(w) & (w >= 0)):
+            raise ValueError(f"the weight of a {self.kind} measure must be finite and >= 0 at "
+                             "every quadrature point")
+        return W * w
 
     @property
     def points(self):
@@ -124,9 +140,9 @@ class Measure:
 class Cells(Measure):
     kind = "cells"
 
-    def __init__(self, mesh, intorder=None, quadrature=None):
+    def __init__(self, mesh, intorder=None, quadrature=None, weight=None):
         super().__init__(mesh, lambda e: CellBasis(mesh, e, intorder=intorder,
-                                                    quadrature=quadrature))
+                                                    quadrature=quadrature), weight)
         self.intorder = intorder
 
     @property
@@ -148,12 +164,12 @@ class Cells(Measure):
 class Facets(Measure):
     kind = "facets"
 
-    def __init__(self, mesh, facets, intorder=None):
+    def __init__(self, mesh, facets, intorder=None, weight=None):
         self.facets = np.asarray(facets, dtype=np.int64)
         if self.facets.size == 0:
             raise ValueError("the facet selection is empty: check the boundary predicate or name")
         super().__init__(mesh, lambda e: FacetBasis(mesh, e, facets=self.facets,
-                                                     intorder=intorder))
+                                                     intorder=intorder), weight)
 
     @property
     def h(self):
@@ -164,16 +180,17 @@ class Facets(Measure):
         return np.asarray(self.basis.normals)
 
 
-def cells(field, intorder=None):
-    """All cells of the field's mesh (quadrature of the field unless intorder is given)."""
-    m = Cells(field.mesh, intorder=intorder)
+def cells(field, intorder=None, weight=None):
+    """All cells of the field's mesh (quadrature of the field unless intorder is given),
+    with the weight w(x) if given (see the module docstring)."""
+    m = Cells(field.mesh, intorder=intorder, weight=weight)
     m.attach(field)
     return m
 
 
-def facets(field, where=None, intorder=None):
+def facets(field, where=None, intorder=None, weight=None):
     """Boundary facets of the field's mesh: all, a named boundary, or those whose
-    midpoints satisfy the predicate `where(x) -> bool`."""
+    midpoints satisfy the predicate `where(x) -> bool`; weight w(x) as for cells."""
     mesh = field.mesh
     if where is None:
         ids = boundary_facets(mesh)
@@ -186,7 +203,7 @@ def facets(field, where=None, intorder=None):
         ids = mesh.facets_satisfying(where, boundaries_only=True)
     else:
         ids = where
-    m = Facets(mesh, ids, intorder=intorder)
+    m = Facets(mesh, ids, intorder=intorder, weight=weight)
     m.attach(field)
     return m
 
@@ -299,15 +316,15 @@ class Interface:
         return [value + (field.mesh.dim(),) * o for o in orders]
 
 
-def interface(field, where=None, to_other=None, intorder=None):
+def interface(field, where=None, to_other=None, intorder=None, weight=None):
     """An interface measure on the body of `field`: its boundary facets `where` (a
     boundary name, a predicate on facet midpoints, or facet indices), or where='cells'
     for all its cells (a membrane lying on another body).  Fields on other meshes are
     evaluated at the same physical points, mapped by to_other(x) -> points of the
     other mesh (arrays of shape (dim, elements, points)); the normal n is the outward
-    normal of this body."""
+    normal of this body; weight w(x) as for cells."""
     if isinstance(where, str) and where == "cells":
-        base = cells(field, intorder=intorder)
+        base = cells(field, intorder=intorder, weight=weight)
     else:
-        base = facets(field, where, intorder=intorder)
+        base = facets(field, where, intorder=intorder, weight=weight)
     return Interface(base, to_other)

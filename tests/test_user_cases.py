@@ -134,3 +134,45 @@ def test_vtu_shows_every_field_of_every_element_kind(tmp_path):
             else:
                 assert np.allclose(data, at, atol=1e-12)
         assert any(k.endswith("_pressure") for k in m.point_data)
+
+
+def test_weighted_measures_enter_energy_constraints_alpha0_and_forces():
+    """The template's block as an axisymmetric-style problem, every measure weighted by
+    w = 2 pi r (r = x[0]): the floor force sum W lambda_N balances the reaction of the held
+    top (both weighted), and a pure traction t on the top gives the reaction -pi t exactly."""
+    from skfem import ElementVector
+    from nitsche.ops import sym_grad
+    from nitsche.reactions import reactions
+    w = lambda x: 2 * np.pi * x[0]
+    mesh = MeshTri.init_tensor(np.linspace(0, 1, 9), np.linspace(0, 0.5, 5))
+    u = ni.Field("u", mesh, ElementVector(ElementTriP1()), fixed=lambda x: x[1] > 0.5 - 1e-12,
+                 value=lambda x: [0 * x[0], -0.01 + 0 * x[0]])
+    density = lambda u: (sym_grad(u) ** 2).sum() + 0.5 * jnp.trace(sym_grad(u)) ** 2
+    floor = ni.Inequality(gap=lambda u, n: -dot(u, n),
+                          multiplier=lambda u, n: -dot(n, dot(2 * sym_grad(u) + jnp.trace(sym_grad(u))
+                                                              * jnp.eye(2), n)),
+                          scaling=ni.Scaling("auto", h_power=1),
+                          on=ni.facets(u, lambda x: x[1] < 1e-12, weight=w), name="floor")
+    problem = ni.Problem([u], ni.Integral(density, ni.cells(u, weight=w)), [floor])
+    assert 0 < problem.alpha0_limits["floor"] < np.inf
+    result = problem.minimize().check()
+    force = result.constraints["floor"]["total_multiplier"]
+    assert reactions(problem, result.x)["u"]["all"][1] == pytest.approx(-force, rel=1e-10)
+    plain = ni.Problem([ni.Field("u", mesh, ElementVector(ElementTriP1()),
+                                 fixed=lambda x: x[1] > 0.5 - 1e-12,
+                                 value=lambda x: [0 * x[0], -0.01 + 0 * x[0]])], density)
+    assert abs(force) > 1.5 * abs(reactions(plain, plain.minimize().check().x)["u"]["all"][1])
+    # a traction t = 1 (downward) on the top, the bottom held: reaction pi t upward
+    u = ni.Field("u", mesh, ElementVector(ElementTriP1()), fixed=lambda x: x[1] < 1e-12)
+    loaded = ni.Problem([u], [ni.Integral(density, ni.cells(u, weight=w)),
+                              ni.Integral(lambda u: u.value[1], ni.facets(u, lambda x: x[1] > 0.5 - 1e-12,
+                                                                          weight=w))])
+    R = reactions(loaded, loaded.minimize().check().x)["u"]["all"]
+    assert R == pytest.approx([0.0, np.pi], abs=1e-10)
+
+
+def test_a_negative_weight_is_refused():
+    mesh = MeshTri().refined(1)
+    u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
+    with pytest.raises(ValueError, match="weight of a cells measure must be finite and >= 0"):
+        ni.Problem([u], ni.Integral(lambda u: u.value ** 2, ni.cells(u, weight=lambda x: x[0] - 0.5)))
