@@ -30,7 +30,10 @@ class Field:
     fixed: degrees of freedom held at prescribed values (strong Dirichlet data):
         None, "boundary" (all boundary dofs), the name of a boundary in
         `mesh.boundaries`, a predicate `x -> bool` on boundary facet midpoints,
-        or an array of dof indices.
+        an array of dof indices, or, for a vector field, a dict
+        {boundary (as above): components held}, components "all", an index
+        0..dim-1, a letter "x", "y", "z", or a list of them; e.g.
+        {"bottom": "all", "left": "x"} (a roller on the left).
     value: the prescribed values, a number or a function of the dof locations
         `x` (shape (dim, n)); Lagrange elements only for functions (for a vector
         Lagrange element the function returns the components, shape (dim, n)).
@@ -65,17 +68,46 @@ class Field:
     def _fixed_dofs(self, fixed):
         if fixed is None:
             return np.zeros(0, dtype=np.int64)
-        if isinstance(fixed, str) and fixed == "boundary":
-            return np.asarray(self.basis.get_dofs(boundary_facets(self.mesh)).all(), dtype=np.int64)
-        if isinstance(fixed, str):
+        if isinstance(fixed, dict):
+            return np.unique(np.concatenate([self._component_dofs(where, which)
+                                             for where, which in fixed.items()] or [[]]))
+        return np.asarray(self.basis.get_dofs(self._boundary(fixed)).all(), dtype=np.int64) \
+            if isinstance(fixed, str) or callable(fixed) else self._dof_indices(fixed)
+
+    def _boundary(self, where):
+        """Boundary facets: 'boundary' (all), a name in mesh.boundaries, or a predicate."""
+        if isinstance(where, str) and where == "boundary":
+            return boundary_facets(self.mesh)
+        if isinstance(where, str):
             names = sorted((self.mesh.boundaries or {}).keys())
-            if fixed not in names:
-                raise ValueError(f"field '{self.name}': unknown boundary {fixed!r}; "
+            if where not in names:
+                raise ValueError(f"field '{self.name}': unknown boundary {where!r}; "
                                  f"use 'boundary' or one of {names}")
-            return np.asarray(self.basis.get_dofs(fixed).all(), dtype=np.int64)
-        if callable(fixed):
-            facets = self.mesh.facets_satisfying(fixed, boundaries_only=True)
-            return np.asarray(self.basis.get_dofs(facets).all(), dtype=np.int64)
+            return self.mesh.boundaries[where]
+        if callable(where):
+            return self.mesh.facets_satisfying(where, boundaries_only=True)
+        raise ValueError(f"field '{self.name}': a fixed boundary is 'boundary', a boundary name "
+                         f"or a predicate of x, not {where!r}")
+
+    def _component_dofs(self, where, which):
+        """The dofs of the components `which` of a vector field on a boundary."""
+        dim = self.mesh.dim()
+        if not isinstance(self.element, ElementVector):
+            raise ValueError(f"field '{self.name}': components can be fixed for vector fields "
+                             "only; give the boundary alone")
+        items = list(range(dim)) if isinstance(which, str) and which == "all" else \
+            [which] if isinstance(which, (int, str)) else list(which)
+        index = []
+        for c in items:
+            i = "xyz".index(c) if isinstance(c, str) and c in "xyz"[:dim] and len(c) == 1 else c
+            if not (isinstance(i, int) and 0 <= i < dim):
+                raise ValueError(f"field '{self.name}': component {c!r} on {where!r}: use 'all', "
+                                 f"an index 0..{dim - 1} or one of {list('xyz'[:dim])}")
+            index.append(i)
+        dofs = self.basis.get_dofs(self._boundary(where))
+        return np.concatenate([np.asarray(dofs.all(f"u^{i + 1}"), dtype=np.int64) for i in index])
+
+    def _dof_indices(self, fixed):
         dofs = np.unique(np.asarray(fixed, dtype=np.int64))
         if dofs.size and (dofs.min() < 0 or dofs.max() >= self.ndofs):
             raise ValueError(f"field '{self.name}': fixed dof indices must lie in [0, {self.ndofs})")

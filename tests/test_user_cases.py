@@ -176,3 +176,32 @@ def test_a_negative_weight_is_refused():
     u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
     with pytest.raises(ValueError, match="weight of a cells measure must be finite and >= 0"):
         ni.Problem([u], ni.Integral(lambda u: u.value ** 2, ni.cells(u, weight=lambda x: x[0] - 0.5)))
+
+
+def test_fixed_components_by_boundary_name():
+    """Rollers: u_x = 0 on 'left', u_y = 0 on 'bottom', a traction t on 'right': uniaxial
+    tension, exact for P1 (a linear field): u_x = t x / E_eff, and the left reaction -t H."""
+    from skfem import ElementVector
+    from nitsche.ops import sym_grad
+    from nitsche.reactions import reactions
+    mesh = MeshTri.init_tensor(np.linspace(0, 2, 5), np.linspace(0, 1, 3)).with_boundaries(
+        {"left": lambda x: x[0] < 1e-12, "bottom": lambda x: x[1] < 1e-12,
+         "right": lambda x: x[0] > 2 - 1e-12})
+    u = ni.Field("u", mesh, ElementVector(ElementTriP1()), fixed={"left": "x", "bottom": 1})
+    assert u.fixed_dofs.size == 3 + 5
+    mu, lam, t = 1.0, 1.0, 0.3
+    energy = [ni.Integral(lambda u: mu * (sym_grad(u) ** 2).sum() + 0.5 * lam * jnp.trace(sym_grad(u)) ** 2,
+                          ni.cells(u)),
+              ni.Integral(lambda u: -t * u.value[0], ni.facets(u, "right"))]
+    problem = ni.Problem([u], energy)
+    x = problem.minimize().check().x
+    E_eff = 4 * mu * (mu + lam) / (2 * mu + lam)  # plane strain, lateral stress free
+    ux = x[u.basis.nodal_dofs[0]]
+    assert np.allclose(ux, t * mesh.p[0] / E_eff, atol=1e-12)
+    R = reactions(problem, x)["u"]
+    assert R["left"][0] == pytest.approx(-t * 1.0, abs=1e-12) and R["bottom"][1] == pytest.approx(0, abs=1e-12)
+    for bad, message in (({"left": "q"}, "component 'q'"), ({"top": "x"}, "unknown boundary 'top'")):
+        with pytest.raises(ValueError, match=message):
+            ni.Field("u", mesh, ElementVector(ElementTriP1()), fixed=bad)
+    with pytest.raises(ValueError, match="vector fields only"):
+        ni.Field("u", mesh, ElementTriP1(), fixed={"left": "x"})
