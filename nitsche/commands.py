@@ -52,7 +52,7 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False):
                 nested_iterations=its,
                 energy=result.energy, active_count=result.active_count,
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
-                seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
+                feasible=result.feasible, seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
                 solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p),
                 alpha0_limits=limits, constraints=result.constraints, errors=errors,
                 reactions=reactions(problem, result.x))
