@@ -119,8 +119,9 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     exactly by a fresh factorization, or by CG preconditioned with an earlier one) and
     backtracks (Armijo) on J_h.  A stationary point is reported converged only if it is
     a minimum: the Hessian on the free dofs positive definite there (the solver's
-    is_positive_definite: a Cholesky factor of that matrix).  Never returns silently
-    unconverged: see Result.converged.
+    is_positive_definite: CHOLMOD a Cholesky factor of that matrix, SuperLU the pivots
+    of its symmetric LU, AMG an LOBPCG estimate).  Never returns silently unconverged:
+    see Result.converged; Result.feasible says whether a constraint looks infeasible.
     """
     check_options(rtol, maxiter)
     t_start = time.perf_counter()
