@@ -5,7 +5,7 @@ PY      = $(VENV)/bin/python
 PIP     = $(VENV)/bin/pip
 OUT    ?= out
 
-.PHONY: install demo paper test test-full bench clean system-deps
+.PHONY: install demo paper test test-full bench docs clean system-deps
 
 $(VENV)/.installed: pyproject.toml
 	$(MAKE) system-deps
@@ -46,6 +46,14 @@ test-full: install
 
 bench: install
 	$(PY) benchmarks/obstacle_assembly.py
+
+# the API reference, generated from the docstrings (docs/api), warnings as errors: $(OUT)/docs/index.html
+$(VENV)/.docs-installed: $(VENV)/.installed pyproject.toml
+	$(PIP) install -q -e ".[docs]"
+	touch $@
+
+docs: install $(VENV)/.docs-installed
+	$(VENV)/bin/sphinx-build -W --keep-going -b html docs/api $(OUT)/docs
 
 clean:
 	rm -rf $(VENV) $(OUT) *.egg-info
