@@ -128,6 +128,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     c0 = assembly.compile_seconds[0]
     timings = {"assembly": 0.0, "solve": 0.0, "line_search": 0.0, "minimum_check": 0.0}
     x = problem.initial(x0)
+    problem.check_finite(x)  # a NaN gap, multiplier or scaling: an error that names it
     free = problem.free
     lin = make_solver(solver, free.size, problem.dim)
     if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields

@@ -183,12 +183,15 @@ def test_sigterm_at_any_moment_leaves_a_whole_run(previous, delay):
 
 
 def test_sigint_in_a_subprocess_is_one_line(previous):
+    """Ctrl-C once the run has started (its first progress line): one line, status 130."""
     before = snapshot(previous)
     proc = subprocess.Popen(PYTHON + ["run", "obstacle", "--level", "4", "--out", str(previous)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)
+    first = proc.stderr.readline()
+    assert first.startswith("[level 0/4]"), first
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=300)
+    err = first + err
     if proc.returncode != 0:
         assert proc.returncode == 130 and "Traceback" not in err, err
         assert err.strip().splitlines()[-1].startswith("nitsche: interrupted (SIGINT)")

@@ -141,7 +141,8 @@ def test_cli_run_and_study_write_the_new_quantities(tmp_path, capsys):
 def test_bad_method_is_a_clear_error(tmp_path, capsys):
     assert main(["run", "two-membrane", "--level", "0", "--out", str(tmp_path),
                  "--set", "method=lagrange"]) == 2
-    assert "method must be one of" in capsys.readouterr().err
+    assert "parameter method='lagrange' ('nitsche' or 'penalty') must be one of 'nitsche', " \
+        "'penalty'" in capsys.readouterr().err
 
 
 def test_paper_command_writes_index(tmp_path, monkeypatch, capsys):
