@@ -8,7 +8,7 @@
 u2 is evaluated at the quadrature points of body 1's contact facets (an interface
 measure), so the two meshes need not match.
 
-setup=punch (default, methods.md): Omega1 = (0,1)^2 (E1 = 1), Omega2 = (0,1) x (1,2)
+setup=punch (default): Omega1 = (0,1)^2 (E1 = 1), Omega2 = (0,1) x (1,2)
 (E2 = 10), nu = 0.3, u1 = 0 on y = 0, u2 = (0, tilt (x - 0.6)) on y = 2 (a tilted rigid
 punch), sides traction free: partial contact.
 

@@ -10,7 +10,7 @@ No dof is fixed: the rigid (affine) motions are held only by the contact term,
 and M_nn = 0 holds naturally.  Bogner-Fox-Schmit elements (C^1 bicubics) in the
 local-coordinate form of nitsche.bfs (scikit-fem's global-monomial BFS loses
 digits on fine meshes).  Under the downward load the corners lift off their
-support; no corner forces are used (methods.md, "Corner forces").
+support; no corner forces are used (docs/theory.md, plate-unilateral).
 """
 import numpy as np
 import jax.numpy as jnp
