@@ -32,7 +32,7 @@ from nitsche.ops import dot, sym_grad
 NAME = "elastic-contact"
 SUMMARY = "two elastic bodies in frictionless contact, plane strain; Hertz check (section 5.2)"
 PARAMETERS = {
-    "setup": ("punch", "'punch' (tilted punch, methods.md) or 'hertz' (analytical check)"),
+    "setup": ("punch", "'punch' (tilted rigid punch, docs/elastic.md) or 'hertz' (analytical check)"),
     "E1": (1.0, "Young's modulus of body 1 (lower, less stiff: carries the multiplier)"),
     "E2": (10.0, "Young's modulus of body 2 (upper, stiffer)"),
     "nu1": (0.3, "Poisson's ratio of body 1"),
