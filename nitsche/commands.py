@@ -11,6 +11,7 @@ import time
 
 from .io import write_json, write_vtu
 from .plot import plot_convergence, plot_solution
+from .quantities import evaluate
 from .reactions import reactions
 from .study import StudyFailed, run_study, solve_nested, table
 
@@ -61,7 +62,11 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False):
     extra = getattr(case.module, "report", None)
     if extra:
         data.update(extra(problem, result, p))
-    out.adopt(write_vtu(out.stage_prefix("solution"), problem, result.x))
+    declared = getattr(case.module, "quantities", None)  # quantities(p) -> {name: density}
+    found = evaluate(problem, result.x, declared(p)) if declared else {}
+    data["quantities"] = {k: s for k, (s, _, _) in found.items()}
+    out.adopt(write_vtu(out.stage_prefix("solution"), problem, result.x,
+                        {k: (m, v) for k, (_, m, v) in found.items()}))
     out.adopt([plot_solution(problem, result, out.stage("solution.png"),
                              f"{case.name}, level {reached}, P{degree}")])
     hook = getattr(case.module, "figures", None)  # figures(problem, result, p, folder) -> paths

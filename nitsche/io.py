@@ -9,6 +9,7 @@ import numpy as np
 from skfem import Basis, ElementVector
 
 from .locate import probes
+from .quantities import vertex_average
 
 
 def write_json(path, data):
@@ -58,11 +59,7 @@ def vertex_multiplier(problem, values, mesh):
         v = values[c.name]
         per_element = (v["multiplier"] * v["W"]).sum(1) / np.maximum(v["W"].sum(1), 1e-300)
         verts = mesh.t if c.on.kind == "cells" else mesh.facets[:, c.on.facets]
-        acc = np.zeros(mesh.nvertices)
-        cnt = np.zeros(mesh.nvertices)
-        np.add.at(acc, verts, np.broadcast_to(per_element, verts.shape))
-        np.add.at(cnt, verts, 1.0)
-        out[f"{c.name}_pressure"] = np.where(cnt > 0, acc / np.maximum(cnt, 1), 0.0)
+        out[f"{c.name}_pressure"] = vertex_average(mesh, per_element, verts)
     return out
 
 
@@ -86,9 +83,10 @@ def output_mesh(mesh, fields):
     return mesh if vertex_only else mesh.refined(1)
 
 
-def write_vtu(path_prefix, problem, x):
-    """One .vtu per mesh: point data named after the fields (every element kind) plus the
-    contact pressure of the constraints on that mesh."""
+def write_vtu(path_prefix, problem, x, vertex_data=None):
+    """One .vtu per mesh: point data named after the fields (every element kind), the
+    contact pressure of the constraints on that mesh, and vertex_data {name: (mesh,
+    values at its vertices)} (e.g. declared quantities)."""
     parts = problem.split(x)
     values = problem.constraint_values(x)
     meshes = []
@@ -100,11 +98,12 @@ def write_vtu(path_prefix, problem, x):
         fields = [f for f in problem.fields if f.mesh is mesh]
         out_mesh = output_mesh(mesh, fields)
         data = {f.name: point_values(f, parts[f.name], out_mesh) for f in fields}
-        pressure = vertex_multiplier(problem, values, mesh)
-        if out_mesh is not mesh and pressure:  # P1 interpolation of the vertex averages
+        at_vertices = vertex_multiplier(problem, values, mesh)
+        at_vertices.update({k: v for k, (m, v) in (vertex_data or {}).items() if m is mesh})
+        if out_mesh is not mesh and at_vertices:  # P1 interpolation of the vertex values
             P = probes(Basis(mesh, mesh.elem()), out_mesh.p)  # vertex values are its dofs
-            pressure = {k: P @ v for k, v in pressure.items()}
-        data.update(pressure)
+            at_vertices = {k: P @ v for k, v in at_vertices.items()}
+        data.update(at_vertices)
         path = f"{path_prefix}.vtu" if len(meshes) == 1 else f"{path_prefix}_{i}.vtu"
         out = to_meshio(out_mesh, point_data=data)
         if out.points.shape[1] == 2:  # VTK points are 3D

@@ -205,3 +205,19 @@ def test_fixed_components_by_boundary_name():
             ni.Field("u", mesh, ElementVector(ElementTriP1()), fixed=bad)
     with pytest.raises(ValueError, match="vector fields only"):
         ni.Field("u", mesh, ElementTriP1(), fixed={"left": "x"})
+
+
+def test_declared_quantities_in_result_and_vtu(block, tmp_path):
+    """The template declares stresses: the mean of sigma_yy over the block (height 1/2,
+    width 1) equals -(floor force) by equilibrium, int sigma_yy = -F H, to the Nitsche
+    consistency level; every quantity is point data of the VTU."""
+    import meshio
+    assert main(["run", "block.py", "--level", "2", "--degree", "2", "--out", "q"]) == 0
+    data = json.loads((tmp_path / "q" / "result.json").read_text())
+    q = data["quantities"]
+    assert set(q) == {"sigma_xx", "sigma_yy", "sigma_xy", "von_mises"}
+    assert q["sigma_yy"]["mean"] == pytest.approx(-data["floor_force"], rel=1e-4)
+    assert abs(q["sigma_xy"]["mean"]) < 1e-12 and q["von_mises"]["min"] > 0
+    m = meshio.read(tmp_path / "q" / "solution.vtu")
+    assert {"von_mises", "sigma_yy", "floor_pressure", "u"} <= set(m.point_data)
+    assert np.all(m.point_data["von_mises"] > 0)

@@ -64,6 +64,22 @@ def build(level, degree, p):
 #   errors(problem, result, p) -> {name: error against an exact solution}
 #   report(problem, result, p) -> {key: value} added to result.json
 #   figures(problem, result, p, folder) -> [paths of the figures written into folder]
+#   quantities(p) -> {name: density}: scalar densities of the fields, written into the VTU
+#                    (vertex averages) and result.json ("quantities": min, max, mean)
 def report(problem, result, p):
     """The total contact force on the floor: sum of W lambda_N over the contact points."""
     return dict(floor_force=result.constraints["floor"]["total_multiplier"])
+
+
+def quantities(p):
+    """The stress components and the von Mises stress (plane strain: s_zz = lambda tr eps)."""
+    def sigma(u, i, j):
+        return stress(u, p.E, p.nu)[i, j]
+
+    def von_mises(u):
+        s = stress(u, p.E, p.nu)
+        szz = p.E * p.nu / ((1 + p.nu) * (1 - 2 * p.nu)) * jnp.trace(sym_grad(u))
+        return jnp.sqrt(0.5 * ((s[0, 0] - s[1, 1]) ** 2 + (s[1, 1] - szz) ** 2
+                               + (szz - s[0, 0]) ** 2) + 3 * s[0, 1] ** 2)
+    return dict(sigma_xx=lambda u: sigma(u, 0, 0), sigma_yy=lambda u: sigma(u, 1, 1),
+                sigma_xy=lambda u: sigma(u, 0, 1), von_mises=von_mises)
