@@ -62,6 +62,8 @@ def _multiplier_panel(fig, ax, name, v):
         sc = ax.scatter(xq[order, 0], xq[order, 1], c=lam[order], s=4, cmap="magma")
         fig.colorbar(sc, ax=ax, shrink=0.8, label=r"$\lambda_N$")
         ax.set_aspect("equal")
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
     ax.set_title(f"{name}: multiplier $\\lambda_N$ (contact pressure)")
 
 

@@ -127,6 +127,7 @@ def figures(problem, result, p, outdir):
     ax.set_title("deflection u (corners lift off)")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
+    ax.set_zlabel("deflection u")
     ax2 = fig.add_subplot(1, 2, 2)
     xq = v["x"].reshape(-1, 2)
     lam = v["multiplier"].ravel()

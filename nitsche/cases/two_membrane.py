@@ -215,12 +215,14 @@ def figures(problem, result, p, outdir):
     ax.set_aspect("equal")
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1)
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
     ax.set_title(f"contact region: area {summary['contact_area']:.4f}, "
                  f"peak pressure {summary['peak_contact_pressure']:.3f}")
     fig.suptitle(f"two membranes, {p.method}, P{degree}, level {level}")
     fig.tight_layout()
     path = os.path.join(outdir, "membranes.png")
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")  # the 3D panel's labels reach outside
     plt.close(fig)
     return [path]
 
