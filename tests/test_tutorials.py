@@ -5,7 +5,6 @@ stated in docs/tutorials.md (measured values there)."""
 import importlib.util
 import os
 
-import numpy as np
 import pytest
 
 EXAMPLES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "examples")
@@ -72,7 +71,7 @@ def test_obstacle_on_a_gmsh_mesh(tmp_path):
         assert row["reaction"] == pytest.approx(row["reaction_outer"] + row["reaction_reentrant"],
                                                 rel=0.05)   # (the two share two corner nodes)
     violations = [row["max_violation"] for row in rows]
-    assert violations[-1] < 1e-3 * depth * 5 and violations[2] < violations[1] < violations[0]
+    assert violations[-1] < 1e-3 and violations[2] < violations[1] < violations[0]
     d = r["differences"]
     assert d[1] < 0.6 * d[0]                         # measured rate 1.23
     assert rows[-1]["contact_force"] == pytest.approx(rows[-2]["contact_force"], rel=1e-2)
