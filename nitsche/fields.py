@@ -48,6 +48,7 @@ class Field:
         if name in ("x", "n", "h"):
             raise ValueError(f"field name {name!r} is reserved for the point, normal and mesh size")
         self.name, self.mesh = name, mesh
+        self.held = {}
         element = own_instance(element)  # one instance per mesh (ElementGlobal caches per instance)
         self.element = element
         self.element_with_hessian = with_hessian(element)  # used where a density asks for hess
@@ -69,10 +70,14 @@ class Field:
         if fixed is None:
             return np.zeros(0, dtype=np.int64)
         if isinstance(fixed, dict):
-            return np.unique(np.concatenate([self._component_dofs(where, which)
-                                             for where, which in fixed.items()] or [[]]))
-        return np.asarray(self.basis.get_dofs(self._boundary(fixed)).all(), dtype=np.int64) \
-            if isinstance(fixed, str) or callable(fixed) else self._dof_indices(fixed)
+            held = {where: self._component_dofs(where, which) for where, which in fixed.items()}
+        elif isinstance(fixed, str) or callable(fixed):
+            held = {fixed: np.asarray(self.basis.get_dofs(self._boundary(fixed)).all(), dtype=np.int64)}
+        else:
+            return self._dof_indices(fixed)
+        # the dofs each named boundary holds (its reaction), "boundary" meaning all of them
+        self.held = {k: d for k, d in held.items() if isinstance(k, str) and k != "boundary"}
+        return np.unique(np.concatenate(list(held.values())))
 
     def _boundary(self, where):
         """Boundary facets: 'boundary' (all), a name in mesh.boundaries, or a predicate."""

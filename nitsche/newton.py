@@ -233,7 +233,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     for name in infeasible if converged else ():
         r = report[name]
         warnings.warn(f"constraint '{name}' looks infeasible: its largest violation "
-                      f"{r['max_violation']:.3g} exceeds {r['violation_limit']:.3g} (min(1/2, 5 alpha0) "
+                      f"{r['max_violation']:.3g} exceeds {r['violation_limit']:.3g} (min(1/2, 50 alpha0) "
                       "times the size of its fields), far beyond the discretization level; check "
                       "its data (e.g. an obstacle above the boundary values, a gap that cannot close)",
                       FeasibilityWarning)

@@ -279,10 +279,11 @@ class Problem:
         the constraint looks infeasible.  At an active point the Nitsche violation is
         -g = alpha (lambda_N - lambda): a feasible problem's lambda_N is a multiplier a
         discrete field of size U (max |u| over the fields of g) can exert, at most
-        ~ stiffness U / h^k, so v <~ alpha0 U, and v -> 0 with h; an infeasible one (an
+        ~ stiffness U / h^k, so v <~ alpha0 U, and v -> 0 with h (on coarse meshes under
+        large loads v reached 8 alpha0 U: hence the factor 50); an infeasible one (an
         obstacle above the boundary values, a gap that cannot be met) keeps v ~ U and
         lambda_N ~ v / alpha -> oo.  Flagged: at the most violated point
-            v > violation_limit = min(1/2, 5 alpha0) U   and   v > 2 alpha |lambda(u_h)|
+            v > violation_limit = min(1/2, 50 alpha0) U   and   v > 2 alpha |lambda(u_h)|
         (the second: the violation is not the consistency term alpha (lambda - lambda_N)
         with lambda_N ~ lambda; it also keeps round-off of a zero solution unflagged)."""
         rep, values, parts = {}, self.constraint_values(x), self.split(x)
@@ -298,7 +299,7 @@ class Problem:
             viol = float(violation[worst])
             size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
                        default=0.0)
-            limit = min(0.5, 5 * c.scaling.alpha0) * size
+            limit = min(0.5, 50 * c.scaling.alpha0) * size
             consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * v["lam"], violation.shape)[worst]))
             rep[c.name] = dict(kind=c.kind, alpha0=c.scaling.alpha0,
                                active_count=int(active.sum()),

@@ -22,8 +22,11 @@ def dof_names(field):
 
 def reactions(problem, x):
     """{field: {region: [R per component]}} for every field with fixed dofs: the regions
-    are 'all' (every fixed dof) and each named boundary of its mesh that holds fixed dofs;
-    the components are those of the value dofs ('u', or 'u^1', 'u^2' (, 'u^3'))."""
+    are 'all' (every fixed dof) and the boundaries named in the field's `fixed` (the dofs
+    each one holds: a corner held in x by one and in y by another is split between them),
+    or, when `fixed` names none, each named boundary of the mesh with fixed dofs on it (a
+    corner then counts for both); the components are those of the value dofs ('u', or
+    'u^1', 'u^2' (, 'u^3'))."""
     g = problem.gradient(x)
     out = {}
     for f in problem.fields:
@@ -33,7 +36,9 @@ def reactions(problem, x):
         names = dof_names(f)
         values = [c for c in dict.fromkeys(f.basis.elem.dofnames) if c == "u" or c.startswith("u^")]
         regions = {"all": f.fixed_dofs}
-        for name, facets in (f.mesh.boundaries or {}).items():
+        if f.held:  # boundaries named in `fixed`: the dofs each one holds (corners split)
+            regions.update(f.held)
+        for name, facets in ({} if f.held else f.mesh.boundaries or {}).items():
             held = np.intersect1d(np.asarray(f.basis.get_dofs(facets).all(), int), f.fixed_dofs)
             if held.size:
                 regions[name] = held

@@ -200,6 +200,8 @@ def test_fixed_components_by_boundary_name():
     assert np.allclose(ux, t * mesh.p[0] / E_eff, atol=1e-12)
     R = reactions(problem, x)["u"]
     assert R["left"][0] == pytest.approx(-t * 1.0, abs=1e-12) and R["bottom"][1] == pytest.approx(0, abs=1e-12)
+    # the corner (0, 0) is held in x by 'left' and in y by 'bottom': each counts its own
+    assert R["left"][1] == 0 and R["bottom"][0] == 0 and "right" not in R
     for bad, message in (({"left": "q"}, "component 'q'"), ({"top": "x"}, "unknown boundary 'top'")):
         with pytest.raises(ValueError, match=message):
             ni.Field("u", mesh, ElementVector(ElementTriP1()), fixed=bad)
