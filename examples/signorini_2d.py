@@ -12,9 +12,9 @@ R whose top touches the block at x = 0: the cylinder's surface is y = -x^2 / (2R
 
 Force balance: the force of the top plate (the reaction of its fixed u_y, from
 nitsche.reactions) balances the contact force sum of W lambda_N, and the rollers on
-x = 0 carry no net horizontal force (frictionless contact and plate).  (The region
-'symmetry' of the reactions also holds the corner node (0, B), whose u_y belongs to
-the plate: its y entry is that node's share of the plate force, not a roller force.)
+x = 0 carry no net horizontal force (frictionless contact and plate).  The reactions of
+'symmetry' and 'top' count the dofs each holds: the corner (0, B) gives its u_x to the
+rollers and its u_y to the plate.
 The contact half-width is compared with plane-strain Hertz, a = sqrt(4 P R / (pi E*)),
 P = 2 x the half model's force per unit thickness; Hertz holds for a half-space and the
 block is only B deep, but with a ~ B/6 the half-width agrees to about 1-3 %.
