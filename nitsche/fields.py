@@ -6,7 +6,7 @@ from skfem import Basis, ElementVector
 from skfem.element import ElementH1
 
 from .elements import with_hessian, provided_orders, own_instance
-from .locate import probes, locate
+from .locate import probes, locate, reference_coordinates
 from .measures import boundary_facets
 
 
@@ -119,7 +119,7 @@ class Field:
         (element-wise for non-conforming elements)."""
         b, elem = self.basis, self.element_with_hessian
         cells = locate(b, x)
-        X = b.mapping.invF(x[:, :, None], tind=cells)
+        X = reference_coordinates(b.mapping, x[:, :, None], cells)
         out = [0.0, 0.0, 0.0]
         for k in range(b.Nbfun):
             df = elem.gbasis(b.mapping, X, k, tind=cells)[0]

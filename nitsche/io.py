@@ -46,7 +46,7 @@ def vertex_multiplier(problem, values, mesh):
             continue
         v = values[c.name]
         per_element = (v["multiplier"] * v["W"]).sum(1) / np.maximum(v["W"].sum(1), 1e-300)
-        verts = mesh.t if c.on.kind == "cells" else mesh.facets[:, c.on.facets]
+        verts = c.on.vertices
         acc = np.zeros(mesh.nvertices)
         cnt = np.zeros(mesh.nvertices)
         np.add.at(acc, verts, np.broadcast_to(per_element, verts.shape))

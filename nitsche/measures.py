@@ -114,9 +114,12 @@ class Measure:
         return T, np.ascontiguousarray(b.element_dofs.T)
 
     def shapes(self, field, orders):
-        """Shape of each requested order's array at one point."""
-        value = _part(self.basis_for(field).basis[0][0], 0).shape[:-2]
-        return [value + (self.mesh.dim(),) * o for o in orders]
+        return value_shapes(field, orders)
+
+    @property
+    def vertices(self):
+        """Mesh vertices of every measure element, shape (vertices, elements)."""
+        return self.mesh.t if self.kind == "cells" else self.mesh.facets[:, self.facets]
 
 
 class Cells(Measure):
@@ -169,24 +172,48 @@ def cells(field, intorder=None):
     return m
 
 
-def facets(field, where=None, intorder=None):
-    """Boundary facets of the field's mesh: all, a named boundary, or those whose
-    midpoints satisfy the predicate `where(x) -> bool`."""
-    mesh = field.mesh
+def select_facets(mesh, where=None):
+    """Boundary facet indices: all (None), a named boundary, those whose midpoints satisfy
+    the predicate `where(x) -> bool`, or the given indices."""
     if where is None:
-        ids = boundary_facets(mesh)
-    elif isinstance(where, str):
+        return boundary_facets(mesh)
+    if isinstance(where, str):
         names = sorted((mesh.boundaries or {}).keys())
         if where not in names:
             raise ValueError(f"unknown boundary {where!r}; the mesh has {names}")
-        ids = mesh.boundaries[where]
-    elif callable(where):
-        ids = mesh.facets_satisfying(where, boundaries_only=True)
-    else:
-        ids = where
-    m = Facets(mesh, ids, intorder=intorder)
+        return mesh.boundaries[where]
+    if callable(where):
+        return mesh.facets_satisfying(where, boundaries_only=True)
+    return where
+
+
+def facets(field, where=None, intorder=None):
+    """Boundary facets of the field's mesh: all, a named boundary, or those whose
+    midpoints satisfy the predicate `where(x) -> bool`."""
+    m = Facets(field.mesh, select_facets(field.mesh, where), intorder=intorder)
     m.attach(field)
     return m
+
+
+def value_shapes(field, orders):
+    """Shape of each requested derivative order of the field at one point."""
+    value = _part(field.basis.basis[0][0], 0).shape[:-2]
+    return [value + (field.mesh.dim(),) * o for o in orders]
+
+
+def tabulate_at(field, orders, cells, x):
+    """The field's basis at physical points x (dim, E, Q) lying in the cells (E, Q) of its
+    mesh: T[e, q, c, k] (components c of the requested orders, local basis functions k)."""
+    from .locate import reference_coordinates
+    basis = field.basis
+    E, Q = cells.shape
+    elem = field.element_with_hessian if 2 in orders else field.element
+    ref = reference_coordinates(basis.mapping, x.reshape(x.shape[0], -1, 1), cells.ravel())
+    parts = []
+    for k in range(basis.Nbfun):
+        df = elem.gbasis(basis.mapping, ref, k, tind=cells.ravel())[0]
+        parts.append(np.concatenate([_part(df, o).reshape(-1, E, Q) for o in orders], axis=0))
+    return np.ascontiguousarray(np.stack(parts, axis=-1).transpose(1, 2, 0, 3))
 
 
 class Interface:
@@ -272,40 +299,45 @@ class Interface:
         X, cells, slots, owners = self._located(field)
         E, Q = cells.shape
         S = owners.shape[1]
-        basis = field.basis
-        elem = field.element_with_hessian if 2 in orders else field.element
-        pts = X.reshape(X.shape[0], -1)
-        ref = basis.mapping.invF(pts[:, :, None], tind=cells.ravel())  # (dim, E*Q, 1)
-        nloc = basis.Nbfun
-        parts = []
-        for k in range(nloc):
-            df = elem.gbasis(basis.mapping, ref, k, tind=cells.ravel())[0]
-            comps = [_part(df, o) for o in orders]  # (*shape, E*Q, 1)
-            parts.append(np.concatenate([a.reshape(-1, E, Q) for a in comps], axis=0))
-        phi = np.stack(parts, axis=-1).transpose(1, 2, 0, 3)  # (E, Q, c, nloc)
+        phi = tabulate_at(field, orders, cells, X)  # (E, Q, c, nloc)
+        nloc = phi.shape[-1]
         T = np.zeros((E, Q, phi.shape[2], S, nloc))
         e, q = np.meshgrid(np.arange(E), np.arange(Q), indexing="ij")
         T[e, q, :, slots, :] = phi
-        dofs = basis.element_dofs[:, owners]  # (nloc, E, S)
+        dofs = field.basis.element_dofs[:, owners]  # (nloc, E, S)
         return (np.ascontiguousarray(T.reshape(E, Q, -1, S * nloc)),
                 np.ascontiguousarray(dofs.transpose(1, 2, 0).reshape(E, S * nloc)))
 
     def shapes(self, field, orders):
-        if self._mine(field):
-            return self.base.shapes(field, orders)
-        value = _part(field.basis.basis[0][0], 0).shape[:-2]
-        return [value + (field.mesh.dim(),) * o for o in orders]
+        return value_shapes(field, orders)
 
 
-def interface(field, where=None, to_other=None, intorder=None):
+def interface(field, where=None, to_other=None, intorder=None, other=None, pairing="auto",
+              reach=None):
     """An interface measure on the body of `field`: its boundary facets `where` (a
     boundary name, a predicate on facet midpoints, or facet indices), or where='cells'
-    for all its cells (a membrane lying on another body).  Fields on other meshes are
-    evaluated at the same physical points, mapped by to_other(x) -> points of the
-    other mesh (arrays of shape (dim, elements, points)); the normal n is the outward
-    normal of this body."""
-    if isinstance(where, str) and where == "cells":
-        base = cells(field, intorder=intorder)
-    else:
-        base = facets(field, where, intorder=intorder)
+    for all its cells (a membrane lying on another body); the normal n is the outward
+    normal of this body.  Points of this body are mapped into the other body's mesh by
+    to_other(x) (arrays of shape (dim, ...); default the identity).
+
+    other: the other body's field.  pairing: 'supermesh' integrates over the
+    intersection of the two traces (nitsche.supermesh: exact for polynomial densities
+    on affine coplanar elements, whatever the meshes); 'points' uses this surface's own
+    quadrature and locates its points in the other mesh (exact for matching meshes or a
+    coarser nested other body); 'auto': the supermesh unless the meshes match on the
+    interface, where both are exact and 'points' keeps the facets' own quadrature.
+    Without `other` the pairing is 'points'.  reach: see nitsche.supermesh.Supermesh."""
+    if pairing not in ("auto", "supermesh", "points"):
+        raise ValueError(f"pairing must be 'auto', 'supermesh' or 'points', not {pairing!r}")
+    on_cells = isinstance(where, str) and where == "cells"
+    if other is not None and pairing != "points":
+        from . import supermesh as sm
+        s1 = sm.cell_surface(field.mesh, to_other) if on_cells else \
+            sm.facet_surface(field.mesh, select_facets(field.mesh, where), to_other)
+        s2 = sm.facet_surface(other.mesh, boundary_facets(other.mesh))
+        order = 2 * field.element.maxdeg if intorder is None else intorder
+        m = sm.Supermesh(s1, s2, order, reach)
+        if pairing == "supermesh" or not m.conforming:
+            return m
+    base = cells(field, intorder=intorder) if on_cells else facets(field, where, intorder=intorder)
     return Interface(base, to_other)

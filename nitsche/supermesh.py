@@ -1,0 +1,266 @@
+"""Supermesh: the intersection of two bodies' traces, on which interface integrals are exact.
+
+Body 1's surface elements S_i (its contact facets, or the cells of a membrane mapped
+into the other body's space by `to_other`) and body 2's boundary facets T_j are cut
+against each other on the plane of S_i: T_j is projected along the normal n_i of S_i,
+the overlap P_ij = S_i ∩ proj T_j is an interval (2D) or a convex polygon (3D:
+Sutherland-Hodgman clipping of triangles and quadrilaterals), split into triangles from
+its first vertex, and every piece carries a Gauss rule of the requested degree.  A point
+x of a piece is paired with the point of T_j's plane along n_i,
+
+    y = x + d n_i,   d = (c_j - x) . n_j / (n_i . n_j)      (c_j: a point of T_j),
+
+the closest point when the surfaces are parallel (the pairing of a curved body follows
+its facets' normals).  On a piece both traces are polynomials when S_i and T_j are
+affine (segments, triangles, parallelograms) and coplanar, so the interface integral of
+a polynomial density is exact (the contact patch test to round-off); on curved or
+bilinear surfaces the pieces still follow the kinks of both traces and the error is
+that of the geometry.
+
+The construction is a function of the corner coordinates alone (`Surface.corners`), so
+a deformed configuration is handled by building it from displaced corners.
+"""
+import time
+
+import numpy as np
+from scipy.spatial import cKDTree
+from skfem.quadrature import get_quadrature
+from skfem.refdom import RefLine, RefTri
+
+from .measures import boundary_facets, cell_diameters, tabulate_at, value_shapes
+
+TOL = 1e-10  # pieces smaller than TOL times their surface element are dropped
+
+
+class Surface:
+    """Surface elements of one body: `own` corners (n, m, d) in the body's coordinates,
+    `corners` (n, m, D) in the common space, the owning `cells` (n,), the mesh `vertices`
+    (m, n), and unit normals (n, D): outward for facets, of arbitrary sign for cells."""
+
+    def __init__(self, mesh, vertices, cells, to_other=None, outward=True):
+        self.mesh, self.vertices, self.cells, self.outward = mesh, vertices, cells, outward
+        own = mesh.p[:, vertices]  # (d, m, n)
+        self.own = own.transpose(2, 1, 0)  # (n, m, d)
+        self.corners = _map(to_other, own).transpose(2, 1, 0)
+        n = plane_normals(self.corners)
+        if outward:  # away from the owning cell's centroid
+            inner = _map(to_other, mesh.p[:, mesh.t[:, cells]].mean(axis=1)).T
+            n *= np.sign(np.sum(n * (self.corners.mean(axis=1) - inner), axis=1))[:, None]
+        self.normals = n
+
+    @property
+    def dim(self):
+        return self.corners.shape[2]
+
+
+def _map(to_other, x):
+    return x if to_other is None else np.asarray(to_other(x), dtype=float)
+
+
+def facet_surface(mesh, facets, to_other=None):
+    """The boundary facets `facets` of a mesh, outward normals."""
+    facets = np.asarray(facets, dtype=np.int64)
+    return Surface(mesh, mesh.facets[:, facets], mesh.f2t[0, facets], to_other)
+
+
+def cell_surface(mesh, to_other):
+    """The cells of a mesh of dimension D - 1 (a membrane), mapped by to_other into D."""
+    return Surface(mesh, mesh.t, np.arange(mesh.t.shape[1]), to_other, outward=False)
+
+
+def plane_normals(corners):
+    """Unit normals (n, D) of segments (D = 2), triangles and quadrilaterals (D = 3)."""
+    if corners.shape[2] == 2:
+        t = corners[:, 1] - corners[:, 0]
+        n = np.stack([t[:, 1], -t[:, 0]], axis=1)
+    elif corners.shape[1] == 3:
+        n = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    else:
+        n = np.cross(corners[:, 2] - corners[:, 0], corners[:, 3] - corners[:, 1])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def frames(surface):
+    """Origin c (n, D) and orthonormal tangent axes E (n, D - 1, D) of each element's plane."""
+    c = surface.corners.mean(axis=1)
+    if surface.dim == 2:
+        e = surface.corners[:, 1] - surface.corners[:, 0]
+        return c, (e / np.linalg.norm(e, axis=1, keepdims=True))[:, None]
+    n = surface.normals
+    e1 = surface.corners[:, 1] - surface.corners[:, 0]
+    e1 -= np.sum(e1 * n, axis=1, keepdims=True) * n
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    return c, np.stack([e1, np.cross(n, e1)], axis=1)
+
+
+def _counterclockwise(poly):
+    """Polygons (P, m, 2) ordered counterclockwise."""
+    x, y = poly[..., 0], poly[..., 1]
+    area = np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1)
+    return np.where((area < 0)[:, None, None], poly[:, ::-1], poly)
+
+
+def clip(subject, clipper, scale):
+    """Sutherland-Hodgman: convex polygons subject (P, m, 2) clipped by convex polygons
+    clipper (P, k, 2), both counterclockwise.  Returns vertices (P, m + k, 2) and counts (P,);
+    `scale` (P,): a length, for the tolerance of the inside test."""
+    P, k = clipper.shape[:2]
+    M = subject.shape[1] + k
+    poly = np.zeros((P, M, 2))
+    poly[:, :subject.shape[1]] = subject
+    count = np.full(P, subject.shape[1])
+    rows = np.arange(P)[:, None]
+    tol = 1e-12 * scale[:, None] ** 2
+    for i in range(k):
+        a, b = clipper[:, i, None], clipper[:, (i + 1) % k, None]
+        t = b - a
+        side = t[..., 0] * (poly[..., 1] - a[..., 1]) - t[..., 1] * (poly[..., 0] - a[..., 0])
+        valid = np.arange(M) < count[:, None]
+        inside = side >= -tol
+        prev = (np.arange(M) - 1) % np.maximum(count, 1)[:, None]
+        s0, in0, p0 = side[rows, prev], inside[rows, prev], poly[rows, prev]
+        cross = valid & (inside != in0)
+        with np.errstate(all="ignore"):
+            r = np.where(cross, s0 / (s0 - side), 0.0)
+        out = np.stack([p0 + r[..., None] * (poly - p0), poly], axis=2).reshape(P, 2 * M, 2)
+        keep = np.stack([cross, valid & inside], axis=2).reshape(P, 2 * M)
+        order = np.argsort(~keep, axis=1, kind="stable")[:, :M]
+        poly, count = out[rows, order], keep.sum(axis=1)
+    return poly, count
+
+
+def _overlaps(s1, s2, pairs, c, E):
+    """The overlap of S_i and the projected T_j as simplices (P', D, D - 1) in S_i's local
+    coordinates, with the index of their pair (P',)."""
+    i, j = pairs
+    local1 = np.einsum("pmD,pkD->pmk", s1.corners[i] - c[i, None], E[i])
+    local2 = np.einsum("pmD,pkD->pmk", s2.corners[j] - c[i, None], E[i])
+    if s1.dim == 2:  # intervals
+        lo = np.maximum(local1.min(axis=1), local2.min(axis=1))[:, 0]
+        hi = np.minimum(local1.max(axis=1), local2.max(axis=1))[:, 0]
+        keep = hi - lo > TOL * (local1.max(axis=1) - local1.min(axis=1))[:, 0]
+        return np.stack([lo, hi], axis=1)[keep, :, None], np.flatnonzero(keep)
+    size = np.linalg.norm(local1 - local1.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+    poly, count = clip(_counterclockwise(local2), _counterclockwise(local1), size)
+    tris, owner = [], []
+    for k in range(1, poly.shape[1] - 1):  # the fan from vertex 0
+        t = np.stack([poly[:, 0], poly[:, k], poly[:, k + 1]], axis=1)
+        u, v = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]
+        area = 0.5 * (u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+        keep = (k + 1 < count) & (area > TOL * size ** 2)
+        tris.append(t[keep])
+        owner.append(np.flatnonzero(keep))
+    return np.concatenate(tris), np.concatenate(owner)
+
+
+def candidate_pairs(s1, s2):
+    """(i, j) of surface elements whose bounding spheres overlap (k-d tree)."""
+    c1, c2 = s1.corners.mean(axis=1), s2.corners.mean(axis=1)
+    r1 = np.linalg.norm(s1.corners - c1[:, None], axis=2).max()
+    r2 = np.linalg.norm(s2.corners - c2[:, None], axis=2).max()
+    near = cKDTree(c1).query_ball_tree(cKDTree(c2), r=(r1 + r2) * (1 + 1e-9))
+    i = np.repeat(np.arange(len(near)), [len(a) for a in near])
+    return i, np.fromiter((j for a in near for j in a), dtype=np.int64, count=i.size)
+
+
+class Supermesh:
+    """The interface measure on the pieces of the supermesh of `s1` (body 1, whose mesh
+    gives x, n, h) and `s2` (body 2's boundary facets).  Each piece e belongs to one
+    element of each body: fields of either mesh are tabulated at its points in that cell.
+
+    Elements T_j facing S_i (n_i . n_j < 0; any orientation for a membrane's cells) and
+    within `reach` of it along n_i (default: the diameter h of S_i's cell) are paired;
+    `intorder`: degree of the Gauss rule on every piece.  `stats`: pieces, pairs, seconds."""
+
+    def __init__(self, s1, s2, intorder, reach=None):
+        start = time.perf_counter()
+        self.s1, self.s2 = s1, s2
+        self.mesh, self.kind = s1.mesh, "facets" if s1.outward else "cells"
+        D = s1.dim
+        h1 = cell_diameters(s1.mesh)[s1.cells]
+        reach = h1 if reach is None else np.broadcast_to(reach, h1.shape)
+        c, E = frames(s1)
+        i, j = candidate_pairs(s1, s2)
+        cos = np.sum(s1.normals[i] * s2.normals[j], axis=1)
+        facing = cos < -TOL if s1.outward else np.abs(cos) > TOL
+        i, j = i[facing], j[facing]
+        simplices, pair = _overlaps(s1, s2, (i, j), c, E)
+        i, j = i[pair], j[pair]
+        # Gauss rule on every piece: local points (P, Q, D - 1), weights (P, Q)
+        X, w = get_quadrature(RefLine if D == 2 else RefTri, intorder)
+        J = simplices[:, 1:] - simplices[:, :1]  # (P, D - 1, D - 1) edge vectors
+        local = simplices[:, None, 0] + np.einsum("kq,pkl->pql", X, J)
+        W = np.abs(np.linalg.det(J))[:, None] * w
+        x = c[i, None] + np.einsum("pqk,pkD->pqD", local, E[i])
+        n1, n2 = s1.normals[i, None], s2.normals[j, None]
+        d = np.sum((s2.corners[j].mean(axis=1)[:, None] - x) * n2, axis=2) / np.sum(n1 * n2, axis=2)
+        near = np.all(np.abs(d) <= reach[i, None], axis=1)
+        i, j, local, W, x, d = i[near], j[near], local[near], W[near], x[near], d[near]
+        # body 1's own coordinates: the affine map of S_i's local coordinates fitted to its
+        # corners (exact for affine elements and maps); W scaled by its Gram determinant
+        corners = np.einsum("pmD,pkD->pmk", s1.corners - c[:, None], E)
+        L = np.concatenate([corners, np.ones(corners.shape[:2] + (1,))], axis=2)
+        A = np.linalg.pinv(L) @ s1.own  # (n, D, d)
+        G = A[:, :D - 1]
+        scale = np.sqrt(np.linalg.det(G @ np.swapaxes(G, 1, 2)))
+        self.owner = i, j
+        self.W = W * scale[i, None]
+        self.x1 = np.moveaxis(np.einsum("pqk,pkd->pqd", local, A[i, :D - 1]) + A[i, None, D - 1], -1, 0)
+        self.x2 = np.moveaxis(x + d[..., None] * n1, -1, 0)
+        self.n = np.broadcast_to(np.moveaxis(n1, -1, 0), (D,) + W.shape)
+        self.cells1, self.cells2 = s1.cells[i], s2.cells[j]
+        if i.size == 0:
+            raise ValueError("the supermesh is empty: no facet of the other body faces this "
+                             "surface within reach")
+        self.stats = dict(pieces=int(i.size), pairs=int(np.unique(i * len(s2.cells) + j).size),
+                          seconds=time.perf_counter() - start)
+
+    @property
+    def conforming(self):
+        """Every S_i is covered by one T_j exactly (matching meshes)."""
+        i, j = self.owner
+        pairs = np.unique(np.stack([i, j]), axis=1)
+        own = np.bincount(i, weights=self.W.sum(axis=1), minlength=len(self.s1.cells))
+        return bool(np.array_equal(pairs[0], np.arange(len(self.s1.cells)))
+                    and np.allclose(own, surface_measures(self.s1), rtol=1e-10, atol=0))
+
+    weights = property(lambda self: self.W)
+    points = property(lambda self: self.x1)
+    normals = property(lambda self: self.n if self.s1.outward else None)
+    h = property(lambda self: cell_diameters(self.mesh)[self.cells1])
+    nelems = property(lambda self: self.W.shape[0])
+    vertices = property(lambda self: self.s1.vertices[:, self.owner[0]])
+
+    def _body(self, field):
+        if field.mesh is self.s1.mesh:
+            return self.cells1, self.x1
+        if field.mesh is self.s2.mesh:
+            return self.cells2, self.x2
+        raise ValueError(f"field '{field.name}' lives on neither mesh of this supermesh")
+
+    def attach(self, field):
+        self._body(field)
+        return field.basis
+
+    def release(self):
+        pass
+
+    def tabulation(self, field, orders):
+        cells, x = self._body(field)
+        Q = x.shape[2]
+        T = tabulate_at(field, orders, np.repeat(cells[:, None], Q, axis=1), x)
+        return T, np.ascontiguousarray(field.basis.element_dofs[:, cells].T)
+
+    def shapes(self, field, orders):
+        return value_shapes(field, orders)
+
+
+def surface_measures(surface):
+    """Length or area of every surface element in the body's own coordinates (flat elements)."""
+    p = surface.own
+    if p.shape[1] == 2:
+        return np.linalg.norm(p[:, 1] - p[:, 0], axis=1)
+    if p.shape[2] == 2:
+        x, y = p[..., 0], p[..., 1]
+        return 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
+    return 0.5 * np.linalg.norm(np.sum(np.cross(p, np.roll(p, -1, axis=1)), axis=1), axis=1)
