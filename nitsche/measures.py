@@ -8,6 +8,7 @@ and for each field the tabulation of its basis functions and local dofs.
 The mesh size is the cell diameter (largest distance between two vertices);
 for a boundary facet it is the diameter of the cell that owns the facet.
 """
+import time
 import weakref
 
 import numpy as np
@@ -332,11 +333,13 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     on_cells = isinstance(where, str) and where == "cells"
     if other is not None and pairing != "points":
         from . import supermesh as sm
+        start = time.perf_counter()
         s1 = sm.cell_surface(field.mesh, to_other) if on_cells else \
             sm.facet_surface(field.mesh, select_facets(field.mesh, where), to_other)
         s2 = sm.facet_surface(other.mesh, boundary_facets(other.mesh))
         order = 2 * field.element.maxdeg if intorder is None else intorder
         m = sm.Supermesh(s1, s2, order, reach)
+        m.stats["seconds"] = time.perf_counter() - start
         if pairing == "supermesh" or not m.conforming:
             return m
     base = cells(field, intorder=intorder) if on_cells else facets(field, where, intorder=intorder)

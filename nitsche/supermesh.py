@@ -170,10 +170,10 @@ class Supermesh:
 
     Elements T_j facing S_i (n_i . n_j < 0; any orientation for a membrane's cells) and
     within `reach` of it along n_i (default: the diameter h of S_i's cell) are paired;
-    `intorder`: degree of the Gauss rule on every piece.  `stats`: pieces, pairs, seconds."""
+    `intorder`: degree of the Gauss rule on every piece.  `stats`: pieces, pairs (and the
+    build time in seconds, set by nitsche.interface)."""
 
     def __init__(self, s1, s2, intorder, reach=None):
-        start = time.perf_counter()
         self.s1, self.s2 = s1, s2
         self.mesh, self.kind = s1.mesh, "facets" if s1.outward else "cells"
         D = s1.dim
@@ -212,8 +212,7 @@ class Supermesh:
         if i.size == 0:
             raise ValueError("the supermesh is empty: no facet of the other body faces this "
                              "surface within reach")
-        self.stats = dict(pieces=int(i.size), pairs=int(np.unique(i * len(s2.cells) + j).size),
-                          seconds=time.perf_counter() - start)
+        self.stats = dict(pieces=int(i.size), pairs=int(np.unique(i * len(s2.cells) + j).size))
 
     @property
     def conforming(self):
@@ -264,3 +263,17 @@ def surface_measures(surface):
         x, y = p[..., 0], p[..., 1]
         return 0.5 * np.abs(np.sum(x * np.roll(y, -1, axis=1) - np.roll(x, -1, axis=1) * y, axis=1))
     return 0.5 * np.linalg.norm(np.sum(np.cross(p, np.roll(p, -1, axis=1)), axis=1), axis=1)
+
+
+def interface_report(problem, x, name):
+    """How constraint `name` is integrated: pairing ('supermesh' or 'points'), number of
+    measure elements, the supermesh's build time and, to compare, the time of one Newton
+    assembly (J_h, gradient and Hessian) of the whole problem at x."""
+    i = [c.name for c in problem.constraints].index(name)
+    stats = getattr(problem.constraints[i].on, "stats", None)
+    start = time.perf_counter()
+    problem.assembler.evaluate(x)
+    return dict(pairing="supermesh" if stats else "points",
+                elements=int(problem.constraint_terms[i].nel),
+                supermesh_seconds=stats["seconds"] if stats else None,
+                newton_assembly_seconds=time.perf_counter() - start)
