@@ -153,14 +153,17 @@ def _overlaps(s1, s2, pairs, c, E):
     return np.concatenate(tris), np.concatenate(owner)
 
 
-def candidate_pairs(s1, s2):
-    """(i, j) of surface elements whose bounding spheres overlap (k-d tree)."""
+def candidate_pairs(s1, s2, reach):
+    """(i, j) of surface elements that can face each other within reach[i]:
+    |c_i - c_j| <= r_i + r_j + reach_i (centroids c, largest centroid-corner distances r)."""
     c1, c2 = s1.corners.mean(axis=1), s2.corners.mean(axis=1)
-    r1 = np.linalg.norm(s1.corners - c1[:, None], axis=2).max()
-    r2 = np.linalg.norm(s2.corners - c2[:, None], axis=2).max()
-    near = cKDTree(c1).query_ball_tree(cKDTree(c2), r=(r1 + r2) * (1 + 1e-9))
+    r1 = np.linalg.norm(s1.corners - c1[:, None], axis=2).max(axis=1) + reach
+    r2 = np.linalg.norm(s2.corners - c2[:, None], axis=2).max(axis=1)
+    near = cKDTree(c2).query_ball_point(c1, r=(r1 + r2.max()) * (1 + 1e-9))
     i = np.repeat(np.arange(len(near)), [len(a) for a in near])
-    return i, np.fromiter((j for a in near for j in a), dtype=np.int64, count=i.size)
+    j = np.fromiter((j for a in near for j in a), dtype=np.int64, count=i.size)
+    keep = np.linalg.norm(c1[i] - c2[j], axis=1) <= (r1[i] + r2[j]) * (1 + 1e-9)
+    return i[keep], j[keep]
 
 
 class Supermesh:
@@ -180,7 +183,7 @@ class Supermesh:
         h1 = cell_diameters(s1.mesh)[s1.cells]
         reach = h1 if reach is None else np.broadcast_to(reach, h1.shape)
         c, E = frames(s1)
-        i, j = candidate_pairs(s1, s2)
+        i, j = candidate_pairs(s1, s2, reach)
         cos = np.sum(s1.normals[i] * s2.normals[j], axis=1)
         facing = cos < -TOL if s1.outward else np.abs(cos) > TOL
         i, j = i[facing], j[facing]
@@ -203,7 +206,7 @@ class Supermesh:
         A = np.linalg.pinv(L) @ s1.own  # (n, D, d)
         G = A[:, :D - 1]
         scale = np.sqrt(np.linalg.det(G @ np.swapaxes(G, 1, 2)))
-        self.owner = i, j
+        self.owner, self.distance = (i, j), d
         self.W = W * scale[i, None]
         self.x1 = np.moveaxis(np.einsum("pqk,pkd->pqd", local, A[i, :D - 1]) + A[i, None, D - 1], -1, 0)
         self.x2 = np.moveaxis(x + d[..., None] * n1, -1, 0)
@@ -216,8 +219,11 @@ class Supermesh:
 
     @property
     def conforming(self):
-        """Every S_i is covered by one T_j exactly (matching meshes)."""
+        """Every S_i is covered by one T_j exactly, in contact (matching meshes): then the
+        other body's trace is polynomial on S_i at the same physical points."""
         i, j = self.owner
+        if np.abs(self.distance).max() > TOL * self.h.min():
+            return False
         pairs = np.unique(np.stack([i, j]), axis=1)
         own = np.bincount(i, weights=self.W.sum(axis=1), minlength=len(self.s1.cells))
         return bool(np.array_equal(pairs[0], np.arange(len(self.s1.cells)))
