@@ -334,8 +334,9 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     if other is not None and pairing != "points":
         from . import supermesh as sm
         start = time.perf_counter()
-        s1 = sm.cell_surface(field.mesh, to_other) if on_cells else \
-            sm.facet_surface(field.mesh, select_facets(field.mesh, where), to_other)
+        points = None if to_other is None else np.asarray(to_other(field.mesh.p), dtype=float)
+        s1 = sm.cell_surface(field.mesh, points) if on_cells else \
+            sm.facet_surface(field.mesh, select_facets(field.mesh, where), points)
         s2 = sm.facet_surface(other.mesh, boundary_facets(other.mesh))
         order = 2 * field.element.maxdeg if intorder is None else intorder
         m = sm.Supermesh(s1, s2, order, reach)

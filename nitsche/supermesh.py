@@ -17,8 +17,9 @@ a polynomial density is exact (the contact patch test to round-off); on curved o
 bilinear surfaces the pieces still follow the kinks of both traces and the error is
 that of the geometry.
 
-The construction is a function of the corner coordinates alone (`Surface.corners`), so
-a deformed configuration is handled by building it from displaced corners.
+The construction is a function of the vertex coordinates of both surfaces in the common
+space (`Surface(..., points)`): on a deformed configuration it is rebuilt from displaced
+vertices, the points still mapped to each body's reference cells.
 """
 import time
 
@@ -33,39 +34,60 @@ TOL = 1e-10  # pieces smaller than TOL times their surface element are dropped
 
 
 class Surface:
-    """Surface elements of one body: `own` corners (n, m, d) in the body's coordinates,
-    `corners` (n, m, D) in the common space, the owning `cells` (n,), the mesh `vertices`
-    (m, n), and unit normals (n, D): outward for facets, of arbitrary sign for cells."""
+    """Surface elements of one body, from `points` (D, vertices): its vertex coordinates in
+    the common space (the mesh's, mapped by to_other, or displaced ones on a deformed
+    configuration).  Per element: `corners` (n, m, D), the owning `cells` (n,), the mesh
+    `vertices` (m, n), unit `normals` (n, D) (outward for facets, of arbitrary sign for
+    cells), a plane frame (`origin` (n, D), orthonormal `axes` (n, D - 1, D)) and the affine
+    map of frame coordinates to the body's own (reference configuration) coordinates
+    fitted to the corners (exact for affine elements and maps), with its Gram determinant
+    `jacobian` (n,)."""
 
-    def __init__(self, mesh, vertices, cells, to_other=None, outward=True):
+    def __init__(self, mesh, vertices, cells, points, outward=True):
         self.mesh, self.vertices, self.cells, self.outward = mesh, vertices, cells, outward
-        own = mesh.p[:, vertices]  # (d, m, n)
-        self.own = own.transpose(2, 1, 0)  # (n, m, d)
-        self.corners = _map(to_other, own).transpose(2, 1, 0)
+        self.corners = points[:, vertices].transpose(2, 1, 0)  # (n, m, D)
         n = plane_normals(self.corners)
         if outward:  # away from the owning cell's centroid
-            inner = _map(to_other, mesh.p[:, mesh.t[:, cells]].mean(axis=1)).T
+            inner = points[:, mesh.t[:, cells]].mean(axis=1).T
             n *= np.sign(np.sum(n * (self.corners.mean(axis=1) - inner), axis=1))[:, None]
         self.normals = n
+        self.origin, self.axes = frames(self.corners, n)
+        local = self.local(np.arange(len(cells)), self.corners)
+        L = np.concatenate([local, np.ones(local.shape[:2] + (1,))], axis=2)
+        self.fit = np.linalg.pinv(L) @ mesh.p[:, vertices].transpose(2, 1, 0)  # (n, D, d)
+        G = self.fit[:, :-1]
+        self.jacobian = np.sqrt(np.linalg.det(G @ np.swapaxes(G, 1, 2)))
 
     @property
     def dim(self):
         return self.corners.shape[2]
 
+    def local(self, idx, x):
+        """Frame coordinates (P, Q, D - 1) of points x (P, Q, D) of the planes of elements idx."""
+        return np.einsum("pqD,pkD->pqk", x - self.origin[idx, None], self.axes[idx])
 
-def _map(to_other, x):
-    return x if to_other is None else np.asarray(to_other(x), dtype=float)
+    def own(self, idx, local):
+        """The body's own coordinates (d, P, Q) of frame coordinates (P, Q, D - 1)."""
+        A = self.fit[idx]
+        return np.moveaxis(np.einsum("pqk,pkd->pqd", local, A[:, :-1]) + A[:, None, -1], -1, 0)
 
 
-def facet_surface(mesh, facets, to_other=None):
-    """The boundary facets `facets` of a mesh, outward normals."""
+def facet_surface(mesh, facets, points=None):
+    """The boundary facets `facets` of a mesh, outward normals; points: the vertex
+    coordinates in the common space (default mesh.p)."""
     facets = np.asarray(facets, dtype=np.int64)
-    return Surface(mesh, mesh.facets[:, facets], mesh.f2t[0, facets], to_other)
+    if facets.size == 0:
+        raise ValueError("the facet selection is empty: check the boundary predicate or name")
+    return Surface(mesh, mesh.facets[:, facets], mesh.f2t[0, facets],
+                   mesh.p if points is None else points)
 
 
-def cell_surface(mesh, to_other):
-    """The cells of a mesh of dimension D - 1 (a membrane), mapped by to_other into D."""
-    return Surface(mesh, mesh.t, np.arange(mesh.t.shape[1]), to_other, outward=False)
+def cell_surface(mesh, points):
+    """The cells of a mesh of dimension D - 1 (a membrane) with vertices at `points` (D, n)."""
+    if points is None or points.shape[0] != mesh.dim() + 1:
+        raise ValueError("an interface on cells paired with another body needs to_other, the "
+                         "map of the cells into the other body's space (one dimension up)")
+    return Surface(mesh, mesh.t, np.arange(mesh.t.shape[1]), points, outward=False)
 
 
 def plane_normals(corners):
@@ -80,17 +102,15 @@ def plane_normals(corners):
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
-def frames(surface):
-    """Origin c (n, D) and orthonormal tangent axes E (n, D - 1, D) of each element's plane."""
-    c = surface.corners.mean(axis=1)
-    if surface.dim == 2:
-        e = surface.corners[:, 1] - surface.corners[:, 0]
-        return c, (e / np.linalg.norm(e, axis=1, keepdims=True))[:, None]
-    n = surface.normals
-    e1 = surface.corners[:, 1] - surface.corners[:, 0]
-    e1 -= np.sum(e1 * n, axis=1, keepdims=True) * n
+def frames(corners, normals):
+    """Origin (n, D) and orthonormal tangent axes (n, D - 1, D) of each element's plane."""
+    c = corners.mean(axis=1)
+    e1 = corners[:, 1] - corners[:, 0]
+    if corners.shape[2] == 2:
+        return c, (e1 / np.linalg.norm(e1, axis=1, keepdims=True))[:, None]
+    e1 -= np.sum(e1 * normals, axis=1, keepdims=True) * normals
     e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    return c, np.stack([e1, np.cross(n, e1)], axis=1)
+    return c, np.stack([e1, np.cross(normals, e1)], axis=1)
 
 
 def _counterclockwise(poly):
@@ -129,12 +149,11 @@ def clip(subject, clipper, scale):
     return poly, count
 
 
-def _overlaps(s1, s2, pairs, c, E):
-    """The overlap of S_i and the projected T_j as simplices (P', D, D - 1) in S_i's local
+def _overlaps(s1, s2, pairs):
+    """The overlap of S_i and the projected T_j as simplices (P', D, D - 1) in S_i's frame
     coordinates, with the index of their pair (P',)."""
     i, j = pairs
-    local1 = np.einsum("pmD,pkD->pmk", s1.corners[i] - c[i, None], E[i])
-    local2 = np.einsum("pmD,pkD->pmk", s2.corners[j] - c[i, None], E[i])
+    local1, local2 = s1.local(i, s1.corners[i]), s1.local(i, s2.corners[j])
     if s1.dim == 2:  # intervals
         lo = np.maximum(local1.min(axis=1), local2.min(axis=1))[:, 0]
         hi = np.minimum(local1.max(axis=1), local2.max(axis=1))[:, 0]
@@ -182,34 +201,26 @@ class Supermesh:
         D = s1.dim
         h1 = cell_diameters(s1.mesh)[s1.cells]
         reach = h1 if reach is None else np.broadcast_to(reach, h1.shape)
-        c, E = frames(s1)
         i, j = candidate_pairs(s1, s2, reach)
         cos = np.sum(s1.normals[i] * s2.normals[j], axis=1)
         facing = cos < -TOL if s1.outward else np.abs(cos) > TOL
         i, j = i[facing], j[facing]
-        simplices, pair = _overlaps(s1, s2, (i, j), c, E)
+        simplices, pair = _overlaps(s1, s2, (i, j))
         i, j = i[pair], j[pair]
-        # Gauss rule on every piece: local points (P, Q, D - 1), weights (P, Q)
+        # Gauss rule on every piece: frame coordinates (P, Q, D - 1), weights (P, Q)
         X, w = get_quadrature(RefLine if D == 2 else RefTri, intorder)
         J = simplices[:, 1:] - simplices[:, :1]  # (P, D - 1, D - 1) edge vectors
         local = simplices[:, None, 0] + np.einsum("kq,pkl->pql", X, J)
         W = np.abs(np.linalg.det(J))[:, None] * w
-        x = c[i, None] + np.einsum("pqk,pkD->pqD", local, E[i])
+        x = s1.origin[i, None] + np.einsum("pqk,pkD->pqD", local, s1.axes[i])
         n1, n2 = s1.normals[i, None], s2.normals[j, None]
-        d = np.sum((s2.corners[j].mean(axis=1)[:, None] - x) * n2, axis=2) / np.sum(n1 * n2, axis=2)
+        d = np.sum((s2.origin[j, None] - x) * n2, axis=2) / np.sum(n1 * n2, axis=2)
         near = np.all(np.abs(d) <= reach[i, None], axis=1)
-        i, j, local, W, x, d = i[near], j[near], local[near], W[near], x[near], d[near]
-        # body 1's own coordinates: the affine map of S_i's local coordinates fitted to its
-        # corners (exact for affine elements and maps); W scaled by its Gram determinant
-        corners = np.einsum("pmD,pkD->pmk", s1.corners - c[:, None], E)
-        L = np.concatenate([corners, np.ones(corners.shape[:2] + (1,))], axis=2)
-        A = np.linalg.pinv(L) @ s1.own  # (n, D, d)
-        G = A[:, :D - 1]
-        scale = np.sqrt(np.linalg.det(G @ np.swapaxes(G, 1, 2)))
+        i, j, local, W, x, d, n1 = i[near], j[near], local[near], W[near], x[near], d[near], n1[near]
+        y = x + d[..., None] * n1
         self.owner, self.distance = (i, j), d
-        self.W = W * scale[i, None]
-        self.x1 = np.moveaxis(np.einsum("pqk,pkd->pqd", local, A[i, :D - 1]) + A[i, None, D - 1], -1, 0)
-        self.x2 = np.moveaxis(x + d[..., None] * n1, -1, 0)
+        self.W = W * s1.jacobian[i, None]
+        self.x1, self.x2 = s1.own(i, local), s2.own(j, s2.local(j, y))
         self.n = np.broadcast_to(np.moveaxis(n1, -1, 0), (D,) + W.shape)
         self.cells1, self.cells2 = s1.cells[i], s2.cells[j]
         if i.size == 0:
@@ -262,7 +273,7 @@ class Supermesh:
 
 def surface_measures(surface):
     """Length or area of every surface element in the body's own coordinates (flat elements)."""
-    p = surface.own
+    p = surface.mesh.p[:, surface.vertices].transpose(2, 1, 0)
     if p.shape[1] == 2:
         return np.linalg.norm(p[:, 1] - p[:, 0], axis=1)
     if p.shape[2] == 2:
