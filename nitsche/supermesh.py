@@ -54,7 +54,8 @@ class Surface:
         self.origin, self.axes = frames(self.corners, n)
         local = self.local(np.arange(len(cells)), self.corners)
         L = np.concatenate([local, np.ones(local.shape[:2] + (1,))], axis=2)
-        self.fit = np.linalg.pinv(L) @ mesh.p[:, vertices].transpose(2, 1, 0)  # (n, D, d)
+        own = mesh.p[:, vertices].transpose(2, 1, 0)  # least squares, normal equations
+        self.fit = np.linalg.solve(np.swapaxes(L, 1, 2) @ L, np.swapaxes(L, 1, 2) @ own)  # (n, D, d)
         G = self.fit[:, :-1]
         self.jacobian = np.sqrt(np.linalg.det(G @ np.swapaxes(G, 1, 2)))
 
@@ -64,12 +65,12 @@ class Surface:
 
     def local(self, idx, x):
         """Frame coordinates (P, Q, D - 1) of points x (P, Q, D) of the planes of elements idx."""
-        return np.einsum("pqD,pkD->pqk", x - self.origin[idx, None], self.axes[idx])
+        return (x - self.origin[idx, None]) @ np.swapaxes(self.axes[idx], 1, 2)
 
     def own(self, idx, local):
         """The body's own coordinates (d, P, Q) of frame coordinates (P, Q, D - 1)."""
         A = self.fit[idx]
-        return np.moveaxis(np.einsum("pqk,pkd->pqd", local, A[:, :-1]) + A[:, None, -1], -1, 0)
+        return np.moveaxis(local @ A[:, :-1] + A[:, None, -1], -1, 0)
 
 
 def facet_surface(mesh, facets, points=None):
@@ -160,6 +161,10 @@ def _overlaps(s1, s2, pairs):
         keep = hi - lo > TOL * (local1.max(axis=1) - local1.min(axis=1))[:, 0]
         return np.stack([lo, hi], axis=1)[keep, :, None], np.flatnonzero(keep)
     size = np.linalg.norm(local1 - local1.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+    boxes = np.all((local2.max(axis=1) > local1.min(axis=1) + TOL * size[:, None])
+                   & (local2.min(axis=1) < local1.max(axis=1) - TOL * size[:, None]), axis=1)
+    pairs = np.flatnonzero(boxes)  # the bounding boxes overlap: clip these
+    local1, local2, size = local1[pairs], local2[pairs], size[pairs]
     poly, count = clip(_counterclockwise(local2), _counterclockwise(local1), size)
     tris, owner = [], []
     for k in range(1, poly.shape[1] - 1):  # the fan from vertex 0
@@ -168,7 +173,7 @@ def _overlaps(s1, s2, pairs):
         area = 0.5 * (u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
         keep = (k + 1 < count) & (area > TOL * size ** 2)
         tris.append(t[keep])
-        owner.append(np.flatnonzero(keep))
+        owner.append(pairs[keep])
     return np.concatenate(tris), np.concatenate(owner)
 
 
