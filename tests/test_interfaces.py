@@ -270,3 +270,16 @@ def test_locate_on_distorted_multilinear_meshes(M, e):
     X = reference_coordinates(basis.mapping, x[:, :, None], cells)
     assert np.all(X > -1e-9) and np.all(X < 1 + 1e-9)
     assert np.abs(basis.mapping.F(X, tind=cells) - x[:, :, None]).max() < 1e-12
+
+
+def test_prolongation_between_distorted_quadrilateral_meshes():
+    """Refining a distorted Q1 mesh nests the spaces: the prolongated function equals the
+    coarse one (through locate on the coarse non-affine mesh)."""
+    coarse = perturbed(MeshQuad.init_tensor(*[np.linspace(0, 1, 5)] * 2), 0.3)
+    fc = ni.Field("u", coarse, ElementQuad1())
+    ff = ni.Field("u", coarse.refined(), ElementQuad1())
+    u = np.random.default_rng(2).normal(size=fc.ndofs)
+    x = np.random.default_rng(3).uniform(0, 1, (2, 300))
+    from nitsche.locate import probes
+    assert np.allclose(probes(ff.basis, x) @ ff.prolongate(fc, u), probes(fc.basis, x) @ u,
+                       atol=1e-12)
