@@ -1,4 +1,4 @@
-"""Measures: where a density is integrated (cells, boundary facets).
+"""Measures: where a density is integrated (cells, boundary facets, interfaces).
 
 A measure supplies, for every one of its elements e and quadrature points q,
 the weight W[e, q] (quadrature weight times Jacobian), the point x, the
@@ -17,6 +17,7 @@ from skfem.quadrature import get_quadrature
 
 from .elements import has_zero_hessian
 from .jets import ORDERS
+from .locate import reference_coordinates
 
 
 _DIAMETERS = {}  # id(mesh) -> diameters, dropped with the mesh
@@ -205,7 +206,6 @@ def value_shapes(field, orders):
 def tabulate_at(field, orders, cells, x):
     """The field's basis at physical points x (dim, E, Q) lying in the cells (E, Q) of its
     mesh: T[e, q, c, k] (components c of the requested orders, local basis functions k)."""
-    from .locate import reference_coordinates
     basis = field.basis
     E, Q = cells.shape
     elem = field.element_with_hessian if 2 in orders else field.element
@@ -230,8 +230,9 @@ class Interface:
     union of the dofs of the other mesh's cells touched by its points (one cell
     for matching meshes, a few for non-matching ones; unused slots carry zeros),
     so the integral is exact wherever the other trace is polynomial on each
-    measure element (matching or nested meshes) and a consistent mortar-type
-    quadrature otherwise.
+    measure element (matching meshes, a coarser nested other body) and a consistent
+    quadrature otherwise, whose error does not fall with refinement (the other trace's
+    kinks between the points); nitsche.supermesh integrates exactly there.
     """
 
     def __init__(self, base, to_other=None):
@@ -330,6 +331,8 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     Without `other` the pairing is 'points'.  reach: see nitsche.supermesh.Supermesh."""
     if pairing not in ("auto", "supermesh", "points"):
         raise ValueError(f"pairing must be 'auto', 'supermesh' or 'points', not {pairing!r}")
+    if other is None and pairing == "supermesh":
+        raise ValueError("pairing='supermesh' needs the other body's field: other=...")
     on_cells = isinstance(where, str) and where == "cells"
     if other is not None and pairing != "points":
         from . import supermesh as sm

@@ -198,6 +198,8 @@ def test_auto_pairing_keeps_the_facet_quadrature_on_matching_meshes():
     assert s.nelems == 6 and s.stats["pairs"] == 6
     with pytest.raises(ValueError, match="pairing"):
         ni.interface(u1, top, other=other, pairing="nodes")
+    with pytest.raises(ValueError, match="other"):
+        ni.interface(u1, top, pairing="supermesh")
 
 
 def test_supermesh_3d_pieces_tile_the_overlap():
