@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 from skfem.quadrature import get_quadrature
 from skfem.refdom import RefLine, RefTri
 
-from .measures import boundary_facets, cell_diameters, tabulate_at, value_shapes
+from .measures import cell_diameters, tabulate_at, value_shapes
 
 TOL = 1e-10  # pieces smaller than TOL times their surface element are dropped
 
@@ -222,15 +222,15 @@ class Supermesh:
         d = np.sum((s2.origin[j, None] - x) * n2, axis=2) / np.sum(n1 * n2, axis=2)
         near = np.all(np.abs(d) <= reach[i, None], axis=1)
         i, j, local, W, x, d, n1 = i[near], j[near], local[near], W[near], x[near], d[near], n1[near]
+        if i.size == 0:
+            raise ValueError("the supermesh is empty: no facet of the other body faces this "
+                             "surface within reach")
         y = x + d[..., None] * n1
         self.owner, self.distance = (i, j), d
         self.W = W * s1.jacobian[i, None]
         self.x1, self.x2 = s1.own(i, local), s2.own(j, s2.local(j, y))
         self.n = np.broadcast_to(np.moveaxis(n1, -1, 0), (D,) + W.shape)
         self.cells1, self.cells2 = s1.cells[i], s2.cells[j]
-        if i.size == 0:
-            raise ValueError("the supermesh is empty: no facet of the other body faces this "
-                             "surface within reach")
         self.stats = dict(pieces=int(i.size), pairs=int(np.unique(i * len(s2.cells) + j).size))
 
     @property
