@@ -4,7 +4,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from skfem import (MeshTri, MeshQuad, MeshTet, MeshHex, ElementTriP1, ElementTriP2,
-                   ElementQuad1, ElementQuad2, ElementTetP1, ElementTetP2, ElementHex1,
+                   ElementQuad1, ElementQuad2, ElementTetP1, ElementTetP2, ElementHex1, ElementHex2,
                    ElementVector, CellBasis)
 
 import nitsche as ni
@@ -152,9 +152,12 @@ def test_quadrature_point_pairing_fails_the_patch_test():
     (MeshTet, ElementTetP1, MeshTet, ElementTetP1, "offset"),
     (MeshTet, ElementTetP1, MeshTet, ElementTetP1, "perturbed"),
     (MeshTet, ElementTetP2, MeshTet, ElementTetP2, "offset"),
+    (MeshTet, ElementTetP2, MeshTet, ElementTetP2, "perturbed"),
     (MeshHex, ElementHex1, MeshHex, ElementHex1, "offset"),
     (MeshTet, ElementTetP1, MeshHex, ElementHex1, "finer"),
-], ids=["P1-offset", "P1-perturbed", "P2-offset", "Q1-offset", "P1-Q1-finer"])
+    pytest.param(MeshHex, ElementHex2, MeshHex, ElementHex2, "offset", marks=pytest.mark.slow),
+], ids=["P1-offset", "P1-perturbed", "P2-offset", "P2-perturbed", "Q1-offset", "P1-Q1-finer",
+        "Q2-offset"])
 def test_contact_patch_3d_non_matching_to_round_off(M1, e1, M2, e2, kind):
     m1 = tensor(M1, np.linspace(0, 1, 4), -1.0, 2)
     if kind == "finer":
