@@ -101,10 +101,12 @@ class Field:
         return np.asarray(fun(self.basis.doflocs), dtype=float)
 
     def prolongate(self, coarse, u):
-        """This field's dofs of the coarse field's function `u` (exact for nested Lagrange spaces)."""
+        """This field's dofs of the coarse field's function `u` (exact for nested Lagrange
+        spaces; dofs outside the coarse mesh, as on a refined curved boundary, take the
+        extrapolation of the nearest coarse cell)."""
         if not (self.is_lagrange and coarse.is_lagrange):
             return self._prolongate_by_dofs(coarse, u)
-        values = probes(coarse.basis, self.basis.doflocs) @ u
+        values = probes(coarse.basis, self.basis.doflocs, outside="nearest") @ u
         if isinstance(self.element, ElementVector):  # rows component-major, dofs interleaved
             j = np.arange(self.ndofs)
             values = values.reshape(self.mesh.dim(), -1)[j % self.mesh.dim(), j]

@@ -46,8 +46,10 @@ def reference_coordinates(mapping, x, tind, tol=1e-13, iterations=40):
     return X
 
 
-def locate(basis, x):
-    """Cell index of every point x (shape (dim, n)); ValueError for points outside the mesh."""
+def locate(basis, x, outside="raise"):
+    """Cell index of every point x (shape (dim, n)).  Points outside the mesh: ValueError,
+    or with outside='nearest' the cell of the nearest centroid (where the cell's polynomial
+    is extrapolated, e.g. a refined curved boundary outside the coarse mesh's chords)."""
     mesh, mapping = basis.mesh, basis.mapping
     corners = mesh.p[:, mesh.t]  # (dim, nverts, ncells)
     lo, hi = corners.min(axis=1), corners.max(axis=1)
@@ -71,12 +73,16 @@ def locate(basis, x):
         todo = todo[cells[todo] < 0]
         if todo.size == 0:
             return cells
+    if outside == "nearest":
+        cells[todo] = tree.query(x[:, todo].T)[1]
+        return cells
     raise ValueError(f"{todo.size} points lie outside the mesh, e.g. {x[:, todo[0]]}")
 
 
-def probes(basis, x):
-    """Sparse matrix evaluating a function of `basis` at the points x (shape (dim, n))."""
-    cells = locate(basis, x)
+def probes(basis, x, outside="raise"):
+    """Sparse matrix evaluating a function of `basis` at the points x (shape (dim, n));
+    outside: see locate."""
+    cells = locate(basis, x, outside)
     X = reference_coordinates(basis.mapping, x[:, :, None], cells)
     phis = np.array([np.asarray(basis.elem.gbasis(basis.mapping, X, k, tind=cells)[0])
                      for k in range(basis.Nbfun)])  # (Nbfun, *components, n, 1)

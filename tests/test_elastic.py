@@ -120,6 +120,16 @@ def test_hertz_p2_non_matching_pressure_converges():
     assert points[1]["pressure_max_core"] > 0.06
 
 
+def test_hertz_p2_on_a_curved_body():
+    """Body 2 is a strip on the parabola itself (polygonal, non-matching): its facets are
+    paired with body 1's along the normal on the supermesh, and the pressure approaches
+    Hertz's as on the flat setup (measured core error 1.9 %, 1.3 %; L2 9.1 %, 3.7 %)."""
+    errs = hertz_errors(2, matching=False, curved=True)
+    for key in ("pressure_max_core", "pressure_L2", "half_width"):
+        assert errs[1][key] < 0.8 * errs[0][key], key
+    assert errs[1]["pressure_max_core"] < 0.02 and errs[1]["pressure_L2"] < 0.05
+
+
 @pytest.mark.slow
 def test_hertz_p2_non_matching_study():
     errs = hertz_errors(4, matching=False)

@@ -288,3 +288,14 @@ def test_prolongation_between_distorted_quadrilateral_meshes():
     from nitsche.locate import probes
     assert np.allclose(probes(ff.basis, x) @ ff.prolongate(fc, u), probes(fc.basis, x) @ u,
                        atol=1e-12)
+
+
+def test_prolongation_to_a_refined_curved_boundary():
+    """The refined disc's boundary nodes lie on the circle, outside the coarse polygon:
+    they take the nearest coarse cell's polynomial (a linear function exactly)."""
+    coarse, fine = MeshTri.init_circle(2), MeshTri.init_circle(3)
+    fc, ff = ni.Field("u", coarse, ElementTriP1()), ni.Field("u", fine, ElementTriP1())
+    with pytest.raises(ValueError, match="outside"):
+        locate(fc.basis, fine.p)
+    linear = lambda x: 1 + 2 * x[0] - 3 * x[1]
+    assert np.allclose(ff.prolongate(fc, fc.interpolate(linear)), linear(fine.p), atol=1e-13)

@@ -22,6 +22,7 @@ a = sqrt(4 P R / (pi E*)), p0 = 2 P / (pi a), p(x) = p0 sqrt(1 - x^2/a^2),
 1/E* = (1 - nu1^2)/E1 + (1 - nu2^2)/E2; P is the computed contact force.
 """
 import os
+from dataclasses import replace
 
 import jax.numpy as jnp
 import numpy as np
@@ -49,6 +50,9 @@ PARAMETERS = {
     "R": (2.0, "hertz: radius of the parabolic profile g0 = x^2 / (2R)"),
     "delta": (0.01, "hertz: downward displacement of body 2's top"),
     "L": (2.0, "hertz: width of the half model and depth of body 1"),
+    "curved": (False, "hertz: body 2's bottom is the parabola y = x^2/(2R) itself (paired "
+                      "along the normal on the supermesh) instead of a flat face with the "
+                      "gap g0"),
 }
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.0}  # punch: limited by corner and free-boundary singularities
@@ -104,7 +108,12 @@ def _meshes(level, p):
         ys = graded(p.L, 0.05 * p.L, 2)
         m1 = MeshTri.init_tensor(xs, -ys[::-1]).refined(level)
         xs2 = xs if p.matching else graded(p.L, 0.1 * p.L, 3)
-        m2 = MeshTri.init_tensor(xs2, ys[ys <= 0.5 * p.L + 1e-12]).refined(level)
+        ys2 = ys[ys <= 0.5 * p.L + 1e-12]
+        m2 = MeshTri.init_tensor(xs2, ys2).refined(level)
+        m2 = m2.with_boundaries({"top": lambda x: x[1] > ys2[-1] - 1e-12})
+        if p.curved:  # a strip on the parabola (the facet numbering stays)
+            x, y = m2.doflocs
+            m2 = replace(m2, doflocs=np.stack([x, y + x ** 2 / (2 * p.R)]))
         return m1, m2
     raise ValueError(f"setup must be 'punch' or 'hertz', not {p.setup!r}")
 
@@ -132,14 +141,13 @@ def build(level, degree, p):
         probe2 = ni.Field("u2", m2, e)
         fix1 = np.concatenate([_dofs_on(probe1, lambda x: x[1] < -p.L + 1e-12),
                                _dofs_on(probe1, lambda x: x[0] < 1e-12, 1)])
-        h2 = m2.p[1].max()
-        top2 = _dofs_on(probe2, lambda x: x[1] > h2 - 1e-12)
+        top2 = probe2.basis.get_dofs("top").all()
         fix2 = np.concatenate([top2, _dofs_on(probe2, lambda x: x[0] < 1e-12, 1)])
         u1 = ni.Field("u1", m1, e, fixed=fix1)
         u2 = ni.Field("u2", m2, e, fixed=fix2,
                       value=lambda x: np.stack([0 * x[0], -p.delta + 0 * x[0]]))
         top = 0.0
-        g0 = lambda x: x[0] ** 2 / (2 * p.R)
+        g0 = lambda x: x[0] ** 2 / (2 * p.R)  # the vertical distance to the parabola
     q = 2 * degree
     w1, w2 = elastic(p.E1, p.nu1), elastic(p.E2, p.nu2)
     energy = [ni.Integral(lambda u1: w1(u1), ni.cells(u1, intorder=q)),
