@@ -12,8 +12,9 @@
 The cube is evaluated on the membrane's cells lifted to z = 1 (an interface measure);
 the meshes are uniform n x n x n and m x m, n = n0 2^level, m = m0 2^level (m0 = n0 by
 default: they match on the top face and the interface uses the membrane's quadrature
-points; otherwise the supermesh of the membrane cells and the cube's top facets).  lap_h of bilinears on rectangles is 0, so lambda = load
-and the multiplier term is stable for every alpha0.
+points; otherwise the supermesh of the membrane cells and the cube's top facets).
+lap_h of bilinears on rectangles is 0, so lambda = load and the multiplier term is
+stable for every alpha0.
 """
 import os
 
