@@ -6,7 +6,7 @@ from skfem import Basis, ElementVector
 from skfem.element import ElementH1
 
 from .elements import with_hessian, provided_orders, own_instance
-from .locate import probes, locate
+from .locate import probes, locate, reference_coordinates
 from .measures import boundary_facets
 
 
@@ -138,10 +138,12 @@ class Field:
         return np.asarray(fun(self.basis.doflocs), dtype=float)
 
     def prolongate(self, coarse, u):
-        """This field's dofs of the coarse field's function `u` (exact for nested Lagrange spaces)."""
+        """This field's dofs of the coarse field's function `u` (exact for nested Lagrange
+        spaces; dofs outside the coarse mesh, as on a refined curved boundary, take the
+        extrapolation of the nearest coarse cell)."""
         if not (self.is_lagrange and coarse.is_lagrange):
             return self._prolongate_by_dofs(coarse, u)
-        values = probes(coarse.basis, self.basis.doflocs) @ u
+        values = probes(coarse.basis, self.basis.doflocs, outside="nearest") @ u
         if isinstance(self.element, ElementVector):  # rows component-major, dofs interleaved
             j = np.arange(self.ndofs)
             values = values.reshape(self.mesh.dim(), -1)[j % self.mesh.dim(), j]
@@ -156,7 +158,7 @@ class Field:
         (element-wise for non-conforming elements)."""
         b, elem = self.basis, self.element_with_hessian
         cells = locate(b, x)
-        X = b.mapping.invF(x[:, :, None], tind=cells)
+        X = reference_coordinates(b.mapping, x[:, :, None], cells)
         out = [0.0, 0.0, 0.0]
         for k in range(b.Nbfun):
             df = elem.gbasis(b.mapping, X, k, tind=cells)[0]

@@ -58,8 +58,7 @@ def vertex_multiplier(problem, values, mesh):
             continue
         v = values[c.name]
         per_element = (v["multiplier"] * v["W"]).sum(1) / np.maximum(v["W"].sum(1), 1e-300)
-        verts = mesh.t if c.on.kind == "cells" else mesh.facets[:, c.on.facets]
-        out[f"{c.name}_pressure"] = vertex_average(mesh, per_element, verts)
+        out[f"{c.name}_pressure"] = vertex_average(mesh, per_element, c.on.vertices)
     return out
 
 

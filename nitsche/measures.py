@@ -1,4 +1,4 @@
-"""Measures: where a density is integrated (cells, boundary facets).
+"""Measures: where a density is integrated (cells, boundary facets, interfaces).
 
 A measure supplies, for every one of its elements e and quadrature points q,
 the weight W[e, q] (quadrature weight times Jacobian), the point x, the
@@ -13,6 +13,7 @@ e.g. 2 pi x[0] for an axisymmetric problem in (r, z), or a plate's thickness.  E
 integral on the measure sees it: the energy, the constraints, the stability limit of
 alpha0 and the reported forces.
 """
+import time
 import weakref
 
 import numpy as np
@@ -21,6 +22,7 @@ from skfem.quadrature import get_quadrature
 
 from .elements import has_zero_hessian
 from .jets import ORDERS
+from .locate import reference_coordinates
 
 
 _DIAMETERS = {}  # id(mesh) -> diameters, dropped with the mesh
@@ -44,6 +46,15 @@ def boundary_facets(mesh):
     """Indices of the facets that belong to one cell only (as mesh.boundary_facets(),
     counted from t2f instead of building the facet-to-cell map)."""
     return np.flatnonzero(np.bincount(mesh.t2f.ravel(), minlength=mesh.facets.shape[1]) == 1)
+
+
+def weighted(W, weight, points, kind):
+    """W x w(x) at the quadrature points (dim, elements, points); w finite and >= 0."""
+    w = np.broadcast_to(np.asarray(weight(points), dtype=float), W.shape)
+    if not np.all(np.isfinite(w) & (w >= 0)):
+        raise ValueError(f"the weight of a {kind} measure must be finite and >= 0 at every "
+                         "quadrature point")
+    return W * w
 
 
 def _part(df, order):
@@ -91,13 +102,7 @@ class Measure:
     def weights(self):
         """W[e, q] = quadrature weight x Jacobian (x the measure's weight w(x))."""
         W = np.asarray(self.basis.dx)
-        if self.weight is None:
-            return W
-        w = np.broadcast_to(np.asarray(self.weight(self.points), dtype=float), W.shape)
-        if not np.all(np.isfinite(w) & (w >= 0)):
-            raise ValueError(f"the weight of a {self.kind} measure must be finite and >= 0 at "
-                             "every quadrature point")
-        return W * w
+        return W if self.weight is None else weighted(W, self.weight, self.points, self.kind)
 
     @property
     def points(self):
@@ -132,9 +137,12 @@ class Measure:
         return T, np.ascontiguousarray(b.element_dofs.T)
 
     def shapes(self, field, orders):
-        """Shape of each requested order's array at one point."""
-        value = _part(self.basis_for(field).basis[0][0], 0).shape[:-2]
-        return [value + (self.mesh.dim(),) * o for o in orders]
+        return value_shapes(field, orders)
+
+    @property
+    def vertices(self):
+        """Mesh vertices of every measure element, shape (vertices, elements)."""
+        return self.mesh.t if self.kind == "cells" else self.mesh.facets[:, self.facets]
 
 
 class Cells(Measure):
@@ -188,24 +196,47 @@ def cells(field, intorder=None, weight=None):
     return m
 
 
-def facets(field, where=None, intorder=None, weight=None):
-    """Boundary facets of the field's mesh: all, a named boundary, or those whose
-    midpoints satisfy the predicate `where(x) -> bool`; weight w(x) as for cells."""
-    mesh = field.mesh
+def select_facets(mesh, where=None):
+    """Boundary facet indices: all (None), a named boundary, those whose midpoints satisfy
+    the predicate `where(x) -> bool`, or the given indices."""
     if where is None:
-        ids = boundary_facets(mesh)
-    elif isinstance(where, str):
+        return boundary_facets(mesh)
+    if isinstance(where, str):
         names = sorted((mesh.boundaries or {}).keys())
         if where not in names:
             raise ValueError(f"unknown boundary {where!r}; the mesh has {names}")
-        ids = mesh.boundaries[where]
-    elif callable(where):
-        ids = mesh.facets_satisfying(where, boundaries_only=True)
-    else:
-        ids = where
-    m = Facets(mesh, ids, intorder=intorder, weight=weight)
+        return mesh.boundaries[where]
+    if callable(where):
+        return mesh.facets_satisfying(where, boundaries_only=True)
+    return where
+
+
+def facets(field, where=None, intorder=None, weight=None):
+    """Boundary facets of the field's mesh: all, a named boundary, or those whose
+    midpoints satisfy the predicate `where(x) -> bool`; weight w(x) as for cells."""
+    m = Facets(field.mesh, select_facets(field.mesh, where), intorder=intorder, weight=weight)
     m.attach(field)
     return m
+
+
+def value_shapes(field, orders):
+    """Shape of each requested derivative order of the field at one point."""
+    value = _part(field.basis.basis[0][0], 0).shape[:-2]
+    return [value + (field.mesh.dim(),) * o for o in orders]
+
+
+def tabulate_at(field, orders, cells, x):
+    """The field's basis at physical points x (dim, E, Q) lying in the cells (E, Q) of its
+    mesh: T[e, q, c, k] (components c of the requested orders, local basis functions k)."""
+    basis = field.basis
+    E, Q = cells.shape
+    elem = field.element_with_hessian if 2 in orders else field.element
+    ref = reference_coordinates(basis.mapping, x.reshape(x.shape[0], -1, 1), cells.ravel())
+    parts = []
+    for k in range(basis.Nbfun):
+        df = elem.gbasis(basis.mapping, ref, k, tind=cells.ravel())[0]
+        parts.append(np.concatenate([_part(df, o).reshape(-1, E, Q) for o in orders], axis=0))
+    return np.ascontiguousarray(np.stack(parts, axis=-1).transpose(1, 2, 0, 3))
 
 
 class Interface:
@@ -221,8 +252,9 @@ class Interface:
     union of the dofs of the other mesh's cells touched by its points (one cell
     for matching meshes, a few for non-matching ones; unused slots carry zeros),
     so the integral is exact wherever the other trace is polynomial on each
-    measure element (matching or nested meshes) and a consistent mortar-type
-    quadrature otherwise.
+    measure element (matching meshes, a coarser nested other body) and a consistent
+    quadrature otherwise, whose error does not fall with refinement (the other trace's
+    kinks between the points); nitsche.supermesh integrates exactly there.
     """
 
     def __init__(self, base, to_other=None):
@@ -291,40 +323,56 @@ class Interface:
         X, cells, slots, owners = self._located(field)
         E, Q = cells.shape
         S = owners.shape[1]
-        basis = field.basis
-        elem = field.element_with_hessian if 2 in orders else field.element
-        pts = X.reshape(X.shape[0], -1)
-        ref = basis.mapping.invF(pts[:, :, None], tind=cells.ravel())  # (dim, E*Q, 1)
-        nloc = basis.Nbfun
-        parts = []
-        for k in range(nloc):
-            df = elem.gbasis(basis.mapping, ref, k, tind=cells.ravel())[0]
-            comps = [_part(df, o) for o in orders]  # (*shape, E*Q, 1)
-            parts.append(np.concatenate([a.reshape(-1, E, Q) for a in comps], axis=0))
-        phi = np.stack(parts, axis=-1).transpose(1, 2, 0, 3)  # (E, Q, c, nloc)
+        phi = tabulate_at(field, orders, cells, X)  # (E, Q, c, nloc)
+        nloc = phi.shape[-1]
         T = np.zeros((E, Q, phi.shape[2], S, nloc))
         e, q = np.meshgrid(np.arange(E), np.arange(Q), indexing="ij")
         T[e, q, :, slots, :] = phi
-        dofs = basis.element_dofs[:, owners]  # (nloc, E, S)
+        dofs = field.basis.element_dofs[:, owners]  # (nloc, E, S)
         return (np.ascontiguousarray(T.reshape(E, Q, -1, S * nloc)),
                 np.ascontiguousarray(dofs.transpose(1, 2, 0).reshape(E, S * nloc)))
 
     def shapes(self, field, orders):
-        if self._mine(field):
-            return self.base.shapes(field, orders)
-        value = _part(field.basis.basis[0][0], 0).shape[:-2]
-        return [value + (field.mesh.dim(),) * o for o in orders]
+        return value_shapes(field, orders)
 
 
-def interface(field, where=None, to_other=None, intorder=None, weight=None):
+def interface(field, where=None, to_other=None, intorder=None, other=None, pairing="auto",
+              reach=None, weight=None):
     """An interface measure on the body of `field`: its boundary facets `where` (a
     boundary name, a predicate on facet midpoints, or facet indices), or where='cells'
-    for all its cells (a membrane lying on another body).  Fields on other meshes are
-    evaluated at the same physical points, mapped by to_other(x) -> points of the
-    other mesh (arrays of shape (dim, elements, points)); the normal n is the outward
-    normal of this body; weight w(x) as for cells."""
-    if isinstance(where, str) and where == "cells":
-        base = cells(field, intorder=intorder, weight=weight)
-    else:
-        base = facets(field, where, intorder=intorder, weight=weight)
+    for all its cells (a membrane lying on another body); the normal n is the outward
+    normal of this body.  Points of this body are mapped into the other body's mesh by
+    to_other(x) (arrays of shape (dim, ...); default the identity).
+
+    other: the other body's field.  pairing: 'supermesh' integrates over the
+    intersection of the two traces (nitsche.supermesh: exact for polynomial densities
+    on affine coplanar elements, whatever the meshes); 'points' uses this surface's own
+    quadrature and locates its points in the other mesh (exact for matching meshes or a
+    coarser nested other body); 'auto': the supermesh unless the meshes match on the
+    interface, where both are exact and 'points' keeps the facets' own quadrature.
+    Without `other` the pairing is 'points'.  reach: see nitsche.supermesh.Supermesh.
+    weight w(x) as for cells."""
+    if pairing not in ("auto", "supermesh", "points"):
+        raise ValueError(f"pairing must be 'auto', 'supermesh' or 'points', not {pairing!r}")
+    if other is None and pairing == "supermesh":
+        raise ValueError("pairing='supermesh' needs the other body's field: other=...")
+    on_cells = isinstance(where, str) and where == "cells"
+    if other is not None and pairing != "points":
+        from . import supermesh as sm
+        mine = None if on_cells else select_facets(field.mesh, where)
+        theirs = boundary_facets(other.mesh)
+        cell_diameters(field.mesh)  # the mesh's, shared with every measure on it
+        start = time.perf_counter()  # the supermesh's own cost, from the facet selections
+        points = None if to_other is None else np.asarray(to_other(field.mesh.p), dtype=float)
+        s1 = sm.cell_surface(field.mesh, points) if on_cells else \
+            sm.facet_surface(field.mesh, mine, points)
+        m = sm.Supermesh(s1, sm.facet_surface(other.mesh, theirs),
+                         2 * field.element.maxdeg if intorder is None else intorder, reach)
+        m.stats["seconds"] = time.perf_counter() - start
+        if pairing == "supermesh" or not m.conforming:
+            if weight is not None:
+                m.W = weighted(m.W, weight, m.points, "interface")
+            return m
+    base = cells(field, intorder=intorder, weight=weight) if on_cells else \
+        facets(field, where, intorder=intorder, weight=weight)
     return Interface(base, to_other)

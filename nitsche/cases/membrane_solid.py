@@ -9,10 +9,12 @@
     lambda = load - mu lap_h w  (the membrane is the less stiff side),  alpha = alpha0 h^2 / mu,
     h = diameter of the membrane cell.
 
-The cube is evaluated at the membrane's quadrature points lifted to z = 1 (an
-interface measure); the meshes are uniform n x n and n x n x n, n = n0 2^level,
-and match on the top face.  lap_h of bilinears on rectangles is 0, so lambda = load
-and the multiplier term is stable for every alpha0.
+The cube is evaluated on the membrane's cells lifted to z = 1 (an interface measure);
+the meshes are uniform n x n x n and m x m, n = n0 2^level, m = m0 2^level (m0 = n0 by
+default: they match on the top face and the interface uses the membrane's quadrature
+points; otherwise the supermesh of the membrane cells and the cube's top facets).
+lap_h of bilinears on rectangles is 0, so lambda = load and the multiplier term is
+stable for every alpha0.
 """
 import os
 
@@ -23,6 +25,7 @@ from skfem import MeshHex, MeshQuad, ElementHex1, ElementQuad1, ElementVector, C
 import nitsche as ni
 from nitsche.case import Interval, NONNEGATIVE, POISSON, POSITIVE
 from nitsche.ops import dot, grad, lap, sym_grad
+from nitsche.supermesh import interface_report
 
 NAME = "membrane-solid"
 SUMMARY = "membrane pushed onto an elastic cube, 3D, hexahedra and quadrilaterals (section 6.2)"
@@ -34,9 +37,13 @@ PARAMETERS = {
     "nu": (0.3, "Poisson's ratio of the cube"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h^2 / mu, h = membrane cell diameter)"),
     "n0": (5, "cells per side at level 0 (level k: n0 2^k)"),
+    "m0": (0, "membrane cells per side at level 0 (0: n0, matching the cube)"),
+    "supermesh": (True, "integrate the interface on the supermesh of the membrane and the "
+                        "cube's top where the meshes do not match (False: at the membrane's "
+                        "quadrature points)"),
 }
 RANGES = {"mu": POSITIVE, "d": NONNEGATIVE, "E": POSITIVE, "nu": POISSON, "alpha0": POSITIVE,
-          "n0": Interval(1, closed_lo=True)}
+          "n0": Interval(1, closed_lo=True), "m0": Interval(0, closed_lo=True)}
 DEGREES = (1,)
 RATE = {1: 1.0}
 
@@ -53,7 +60,8 @@ def lift(x):
 def build(level, degree, p):
     n = p.n0 * 2 ** level
     t = np.linspace(0.0, 1.0, n + 1)
-    cube, membrane = MeshHex.init_tensor(t, t, t), MeshQuad.init_tensor(t, t)
+    s = np.linspace(0.0, 1.0, (p.m0 or p.n0) * 2 ** level + 1)
+    cube, membrane = MeshHex.init_tensor(t, t, t), MeshQuad.init_tensor(s, s)
     u = ni.Field("u", cube, ElementVector(ElementHex1()), fixed=lambda x: x[2] < 1e-12,
                  intorder=2)  # exact for the trilinear stiffness; the default (64 points) is heavy
     w = ni.Field("w", membrane, ElementQuad1(), fixed="boundary")
@@ -70,7 +78,8 @@ def build(level, degree, p):
         gap=lambda w, u: p.d + w - u[2],
         multiplier=lambda w: p.load - p.mu * lap(w),
         scaling=ni.Scaling(p.alpha0, h_power=2, stiffness=p.mu),
-        on=ni.interface(w, "cells", to_other=lift, intorder=2), name="contact")
+        on=ni.interface(w, "cells", to_other=lift, intorder=2, other=u,
+                        pairing="auto" if p.supermesh else "points"), name="contact")
     return dict(fields=[u, w], energy=[ni.Integral(solid, ni.cells(u)), ni.Integral(sheet, ni.cells(w))],
                 constraints=[contact])
 
@@ -103,7 +112,8 @@ def report(problem, result, p):
                 applied_load=float(p.load),  # on the unit square
                 min_deflection=float(w.min()),
                 first_principal_stress_max=float(s1.max()),
-                first_principal_stress_min=float(s1.min()))
+                first_principal_stress_min=float(s1.min()),
+                interface=interface_report(problem, result.x, "contact"))
 
 
 def study_extra(problem, result, row):
