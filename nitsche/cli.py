@@ -171,8 +171,9 @@ def new_case(name):
 def execute(case, args, p, out, options):
     """Solve into an OutputFolder and commit it; a failed write leaves the folder as it was."""
     from . import commands
+    folder = OutputFolder(out, overwrite=args.overwrite)
     try:
-        with OutputFolder(out, overwrite=args.overwrite) as folder:
+        with folder:
             if args.command == "run":
                 rc = commands.run(case, args.level, args.degree, p, folder, options,
                                   nested=args.nested, verbose=args.verbose)
@@ -180,6 +181,13 @@ def execute(case, args, p, out, options):
                 rc = commands.study(case, args.levels, args.degree, p, folder, options,
                                     start=args.start)
             paths = folder.commit()
+    except (KeyboardInterrupt, Interrupted) as e:
+        if not folder.committed:
+            raise
+        signum = e.signum if isinstance(e, Interrupted) else signal.SIGINT
+        print(f"nitsche: interrupted ({signal.Signals(signum).name}) after the output was "
+              f"written: {out} holds this run, whole", file=sys.stderr)
+        return 128 + signum
     except OSError as e:
         print(f"nitsche: error: could not write the output into {out}: {e.strerror or e}; "
               "the folder holds what it held before", file=sys.stderr)

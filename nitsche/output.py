@@ -7,17 +7,19 @@
 Before anything is staged the folder must be writable, not locked by another run,
 and hold no nitsche outputs that no manifest records (an earlier version's run)
 unless `overwrite`.  Files are written into a hidden staging folder inside it; commit
-renames them into place with SIGINT and SIGTERM held, result.json last (its presence
+renames them into place with SIGINT and SIGTERM held (delivered after it), result.json last (its presence
 means the run is whole), removes what the previous run's manifest lists and this run
 did not write, and writes the new manifest.  Without a commit (an error, a signal, a
 full disk) the staging folder is removed and the folder holds what it held before.
 """
+import contextlib
 import errno
 import fcntl
 import json
 import os
 import shutil
 import signal
+import threading
 
 MANIFEST = ".nitsche-manifest.json"
 LOCK = ".nitsche.lock"
@@ -43,6 +45,24 @@ class Interrupted(BaseException):
 def raise_interrupted(signum, frame):
     """Signal handler: turn SIGTERM into an exception, so that clean-up code runs."""
     raise Interrupted(signum)
+
+
+@contextlib.contextmanager
+def held_signals():
+    """SIGINT and SIGTERM received inside the block are delivered when it ends (Python runs
+    signal handlers in the main thread; elsewhere nothing is held)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending = []
+    previous = {s: signal.signal(s, lambda signum, frame: pending.append(signum)) for s in HELD}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for s in pending[:1]:
+            signal.raise_signal(s)
 
 
 def is_output(name):
@@ -75,7 +95,7 @@ class OutputFolder:
         check_folder(path, option)
         self.path, self.overwrite, self.option = path, overwrite, option
         self.staged, self._lock, self._created = [], None, []
-        self.staging = None
+        self.staging, self.committed = None, False
 
     def __enter__(self):
         self._created = self._make_folders()
@@ -182,23 +202,20 @@ class OutputFolder:
         if missing:
             raise OSError(f"staged output files were not written: {missing}")
         names = sorted(self.staged, key=lambda n: n in LAST)
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, HELD)
-        try:
+        manifest = os.path.join(self.staging, MANIFEST)  # written before anything changes
+        with open(manifest, "w") as fh:
+            json.dump({"files": names}, fh)
+        with held_signals():  # from here on only removals and renames
             for n in LAST:  # the old run is no longer whole from here on
                 if n in self._previous and os.path.exists(os.path.join(self.path, n)):
                     os.remove(os.path.join(self.path, n))
             for n in self._previous:
                 if n not in names and os.path.exists(os.path.join(self.path, n)):
                     os.remove(os.path.join(self.path, n))
-            manifest = os.path.join(self.staging, MANIFEST)
-            with open(manifest, "w") as fh:
-                json.dump({"files": names}, fh)
             os.replace(manifest, os.path.join(self.path, MANIFEST))
             for n in names:
                 os.replace(os.path.join(self.staging, n), os.path.join(self.path, n))
-            self._created = []
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+            self._created, self.committed = [], True
         return [os.path.join(self.path, n) for n in names]
 
     def _abandon(self):

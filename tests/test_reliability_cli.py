@@ -175,10 +175,13 @@ def test_sigterm_at_any_moment_leaves_a_whole_run(previous, delay):
     assert "Traceback" not in err
     if proc.returncode == 0:  # finished before the signal
         assert_whole(previous, level=4)
+    elif "after the output was written" in err:  # the signal came while files were renamed in
+        assert proc.returncode == 128 + signal.SIGTERM
+        assert_whole(previous, level=4)
     else:  # killed while Python was still importing (-15), or stopped by our handler
         assert proc.returncode in (-signal.SIGTERM, 128 + signal.SIGTERM), err
         if proc.returncode > 0:
-            assert "interrupted (SIGTERM)" in err
+            assert "interrupted (SIGTERM); the output folder holds what it held before" in err
         assert snapshot(previous) == before
 
 
@@ -288,3 +291,21 @@ def test_parameters_of_every_case_accept_their_defaults():
         assert isinstance(case, Case)
         case.parameters()
         case.check_level(3, case.degrees[0], case.parameters())
+
+
+def test_a_signal_held_during_the_commit_is_reported_after_it(previous, monkeypatch, capsys):
+    """SIGTERM while the files are renamed in: the commit completes (signals are held), then
+    the run stops with 143 and says that the folder holds this run, whole."""
+    import nitsche.output as output
+    rename = output.os.replace
+    sent = []
+
+    def replace_and_signal(a, b):
+        rename(a, b)
+        if STAGING not in b and not sent:  # the commit's first rename into the folder
+            sent.append(os.kill(os.getpid(), signal.SIGTERM))
+    monkeypatch.setattr(output.os, "replace", replace_and_signal)
+    assert main(["run", "obstacle", "--level", "2", "--out", str(previous)]) == 143
+    monkeypatch.undo()
+    assert "after the output was written" in capsys.readouterr().err
+    assert_whole(previous, level=2)
