@@ -64,11 +64,12 @@ class Case:
         return problem
 
     def alpha0_limits(self, degree, p, level=1):
-        """Stability limits of alpha0 computed on a coarse level of this case (remembered
-        per degree and parameter values)."""
+        """Diagnostic: the global stability limits of alpha0 (one value per constraint,
+        Problem.global_limits) on a coarse level of this case (remembered per degree and
+        parameter values).  Each Problem computes its own element-local limits."""
         key = (degree, level, tuple(sorted((k, repr(v)) for k, v in vars(p).items())))
         if key not in self._limits:
-            self._limits[key] = self.problem(level, degree, p).alpha0_limits
+            self._limits[key] = self.problem(level, degree, p).global_limits()
         return dict(self._limits[key])
 
     def errors(self, problem, result, p):
@@ -95,8 +96,8 @@ def _parse(name, text, default):
         if isinstance(default, int):
             return int(text)
         if isinstance(default, float) or default == "auto":
-            if text == "auto" and default == "auto":
-                return text
+            if default == "auto" and (text == "auto" or text.endswith("*limit")):
+                return text  # checked by nitsche.Scaling
             value = float(text)
             if not math.isfinite(value):
                 raise ValueError

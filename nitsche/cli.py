@@ -93,15 +93,14 @@ def _run(case, args, p, out, options):
     from .plot import plot_solution
     from .study import solve_nested
     t0 = time.perf_counter()
-    limits = case.alpha0_limits(args.degree, p)
     if args.verbose:
         options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
                                                        f"J_h {E:.12g}", file=sys.stderr)
     if args.nested:
-        problem, result, its = solve_nested(case, args.level, args.degree, p, limits, options,
+        problem, result, its = solve_nested(case, args.level, args.degree, p, None, options,
                                             progress=True)
     else:
-        problem = case.problem(args.level, args.degree, p, limits)
+        problem = case.problem(args.level, args.degree, p)
         result = problem.minimize(**options)
         its = [result.iterations]
     seconds = time.perf_counter() - t0
@@ -124,7 +123,8 @@ def _run(case, args, p, out, options):
                 energy=result.energy, active_count=result.active_count,
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
                 seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
-                solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p), alpha0_limits=limits,
+                solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p),
+                alpha0_limits=problem.alpha0_limits,
                 constraints=result.constraints, errors=errors)
     extra = getattr(case.module, "report", None)
     if extra:

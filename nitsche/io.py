@@ -55,8 +55,21 @@ def vertex_multiplier(problem, values, mesh):
     return out
 
 
+def cell_alpha0(problem, mesh):
+    """alpha0 of every constraint with a multiplier on `mesh` as cell data ('<name>_alpha0':
+    the smallest over the cell's constraint elements, NaN on cells without one)."""
+    out = {}
+    for c, t in zip(problem.constraints, problem.constraint_terms):
+        if c.on.mesh is mesh and c.multiplier is not None:
+            a = np.full(mesh.nelements, np.inf)
+            np.minimum.at(a, t.cells, problem.alpha0[c.name])
+            out[f"{c.name}_alpha0"] = [np.where(np.isfinite(a), a, np.nan)]
+    return out
+
+
 def write_vtu(path_prefix, problem, x):
-    """One .vtu per mesh: point data named after the fields plus the contact pressure."""
+    """One .vtu per mesh: point data named after the fields plus the contact pressure, cell
+    data alpha0 per constraint."""
     parts = problem.split(x)
     values = problem.constraint_values(x)
     meshes = []
@@ -69,7 +82,7 @@ def write_vtu(path_prefix, problem, x):
                 if f.mesh is mesh and f.is_lagrange}
         data.update(vertex_multiplier(problem, values, mesh))
         path = f"{path_prefix}.vtu" if len(meshes) == 1 else f"{path_prefix}_{i}.vtu"
-        out = to_meshio(mesh, point_data=data)
+        out = to_meshio(mesh, point_data=data, cell_data=cell_alpha0(problem, mesh))
         if out.points.shape[1] == 2:  # VTK points are 3D
             out.points = np.c_[out.points, np.zeros(len(out.points))]
         out.write(path)

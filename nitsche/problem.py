@@ -20,8 +20,11 @@ class Problem:
     energy: a density of the fields (integrated over the cells of the first
         field's mesh), an Integral, or a list of Integrals.
     constraints: Equality / Inequality / Penalty constraints.
-    alpha0_limits: {constraint name: limit} computed on a coarse mesh, used to
-        resolve alpha0='auto' and to check given values; computed here if omitted.
+    alpha0_limits: {constraint name: limit}: one stability limit for all elements of a
+        constraint (e.g. from global_limits()) instead of the element-local ones computed here.
+
+    After construction: limits[name] and alpha0[name] per element of each constraint, and
+    alpha0_limits[name] the smallest limit.
     """
 
     def __init__(self, fields, energy, constraints=(), alpha0_limits=None):
@@ -49,10 +52,9 @@ class Problem:
         self._check_arguments()
         self.energy_terms = [Term(i.pointwise(), i.names, i.on, self.fields, self.offsets,
                                   "the energy density") for i in self.integrals]
-        self.alpha0_limits = dict(alpha0_limits or {})
-        self._resolve_alpha0()
         self.constraint_terms = [Term(c.pointwise(), c.names, c.on, self.fields, self.offsets,
                                       f"constraint '{c.name}'", keep_points=True) for c in self.constraints]
+        self._resolve_alpha0(dict(alpha0_limits or {}))
         self.value_terms = [t.with_pointwise(c.values())
                             for c, t in zip(self.constraints, self.constraint_terms)]
         self.assembler = Assembler(self.energy_terms + self.constraint_terms, self.ndofs)
@@ -67,39 +69,93 @@ class Problem:
             check_arguments(c.multiplier_names, self.by_name, f"the multiplier of constraint '{c.name}'")
 
     # -- alpha0 -----------------------------------------------------------------
-    def _resolve_alpha0(self):
-        needs = [c for c in self.constraints
-                 if c.multiplier is not None and c.name not in self.alpha0_limits]
-        if needs:
-            self.alpha0_limits.update(self.stability_limits(needs))
-        for c in self.constraints:
-            limit = self.alpha0_limits.get(c.name, np.inf)
-            if c.scaling.is_auto:
-                c.scaling.alpha0 = auto_alpha0(limit)
-            elif c.multiplier is not None and c.scaling.alpha0 >= limit:
-                warnings.warn(f"constraint '{c.name}': alpha0 = {c.scaling.alpha0:g} exceeds the "
-                              f"stability limit {limit:.4g} (J_h is not convex; Newton may fail); "
-                              f"use alpha0 < {limit:.4g} or alpha0='auto'", StabilityWarning)
+    def _resolve_alpha0(self, given):
+        """alpha0 per element of every constraint, as data of its term (the user's Scaling is
+        left as given); a given value above an element's limit warns."""
+        self.limits, self.alpha0 = {}, {}
+        needs = [c for c in self.constraints if c.multiplier is not None and c.name not in given
+                 and (c.scaling.needs_limit or self._multiplier_on_own_mesh(c))]
+        local = self.local_limits(needs)
+        for c, t in zip(self.constraints, self.constraint_terms):
+            limit = np.full(t.nel, given[c.name], dtype=float) if c.name in given \
+                else local.get(c.name, np.full(t.nel, np.inf))
+            alpha0 = c.scaling.per_element(limit, centroids(t), t.h)
+            self.limits[c.name], self.alpha0[c.name] = limit, alpha0
+            t.alpha0 = alpha0
+            over = alpha0 >= limit
+            if over.any():
+                warnings.warn(f"constraint '{c.name}': alpha0 = {alpha0[over].max():g} exceeds the "
+                              f"stability limit {limit[over].min():.4g} on {over.sum()} of {t.nel} "
+                              f"elements (J_h may not be convex; Newton may fail); use a smaller "
+                              f"alpha0 or alpha0='auto'", StabilityWarning)
+        self.alpha0_limits = {c.name: float(self.limits[c.name].min()) for c in self.constraints
+                              if c.multiplier is not None}
 
-    def stability_limits(self, constraints=None):
-        """alpha0 limit 1/C_I of each constraint with a multiplier, C_I the largest
-        eigenvalue of  B v = mu K v,  B = Hessian of int 1/2 (alpha/alpha0) lambda^2,
-        K = Hessian of the energy J (free dofs)."""
-        from .stability import largest_generalized_eigenvalue
+    def local_limits(self, constraints=None):
+        """{constraint name: the element-local stability limit of alpha0 on each element}
+        (nitsche.stability): batched eigenproblems of the cells that own the elements."""
+        from .stability import local_limits
         constraints = self.constraints if constraints is None else constraints
         x = self.initial(None)
-        K = Assembler(self.energy_terms, self.ndofs).hessian(x)
-        K = K[self.free][:, self.free]
-        limits = {}
+        free = np.zeros(self.ndofs, bool)
+        free[self.free] = True
+        out = {}
         for c in constraints:
             if c.multiplier is None:
                 continue
-            term = Term(c.multiplier_square(), c.multiplier_names, c.on, self.fields, self.offsets,
-                        f"the multiplier of constraint '{c.name}'")
-            B = Assembler([term], self.ndofs).hessian(x)[self.free][:, self.free]
-            mu = largest_generalized_eigenvalue(B, K)
-            limits[c.name] = 1.0 / mu if mu > 0 else np.inf
+            mesh = c.on.mesh
+            if not self._multiplier_on_own_mesh(c):
+                raise ValueError(f"constraint '{c.name}': element-local alpha0 limits need the "
+                                 "multiplier's fields on the constraint's own mesh; give alpha0 as "
+                                 "a number (Problem.global_limits() checks it)")
+            K = [(element_hessians(t, x), t.global_dofs) for t in self.energy_terms
+                 if t.measure.kind == "cells" and t.measure.mesh is mesh]
+            if not K:
+                raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
+                                 "constraint's mesh to bound its multiplier")
+            B = self._multiplier_term(c)
+            out[c.name] = local_limits(element_hessians(B, x), B.global_dofs, B.cells, K, free)
+        return out
+
+    def _multiplier_on_own_mesh(self, c):
+        return all(self.by_name[k].mesh is c.on.mesh for k in c.multiplier_names if k in self.by_name)
+
+    def _multiplier_term(self, c, alpha0=None):
+        """The term int 1/2 alpha lambda^2 of a constraint (alpha0 = 1 unless given)."""
+        term = Term(c.multiplier_square(), c.multiplier_names, c.on, self.fields, self.offsets,
+                    f"the multiplier of constraint '{c.name}'")
+        if alpha0 is not None:
+            term.alpha0 = alpha0
+        return term
+
+    def _pencil(self, terms):
+        """(B, K) on the free dofs: B the Hessian of the terms, K that of the energy J."""
+        x = self.initial(None)
+        K = Assembler(self.energy_terms, self.ndofs).hessian(x)[self.free][:, self.free]
+        B = Assembler(terms, self.ndofs).hessian(x)[self.free][:, self.free]
+        return B, K
+
+    def global_limits(self, constraints=None):
+        """Diagnostic: {name: 1/C_I}, the one alpha0 for all elements up to which J_h is
+        convex (each constraint alone), C_I the largest eigenvalue of the global pencil
+        B v = mu K v (B: Hessian of int 1/2 (alpha/alpha0) lambda^2; sparse LU of K)."""
+        from .stability import largest_generalized_eigenvalue
+        constraints = self.constraints if constraints is None else constraints
+        limits = {}
+        for c in constraints:
+            if c.multiplier is not None:
+                mu = largest_generalized_eigenvalue(*self._pencil([self._multiplier_term(c)]))
+                limits[c.name] = 1.0 / mu if mu > 0 else np.inf
         return limits
+
+    def stability_ratio(self):
+        """Diagnostic: the largest eigenvalue of B_alpha v = mu K v, B_alpha the Hessian of
+        the sum over constraints of int 1/2 alpha lambda^2 with this problem's alpha0 on
+        each element: J_h is convex if it is at most 1 (global sparse LU of K)."""
+        from .stability import largest_generalized_eigenvalue
+        terms = [self._multiplier_term(c, self.alpha0[c.name]) for c in self.constraints
+                 if c.multiplier is not None]
+        return largest_generalized_eigenvalue(*self._pencil(terms)) if terms else 0.0
 
     # -- vectors ----------------------------------------------------------------
     def initial(self, x0):
@@ -194,7 +250,12 @@ class Problem:
             else:
                 active = np.zeros_like(v["g"], bool)
                 viol = float(np.max(np.abs(v["g"])))
-            rep[c.name] = dict(kind=c.kind, alpha0=c.scaling.alpha0,
+            a, limit = self.alpha0[c.name], self.limits[c.name]
+            rep[c.name] = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
+                               alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
+                               alpha0_limit_min=float(limit.min()),
+                               alpha0_limit_median=float(np.median(limit)),
+                               alpha0_limit_max=float(limit.max()),
                                active_count=int(active.sum()),
                                contact_measure=float((v["W"] * active).sum()),
                                max_violation=viol,
@@ -203,10 +264,14 @@ class Problem:
         return rep
 
 
-SAFE_FRACTION = 0.5  # alpha0='auto' takes this fraction of the stability limit
-AUTO_CAP = 0.1       # ... and at most this when the multiplier term is unconditionally stable
+def element_hessians(term, x):
+    """The element Hessians of a term at x (of a quadratic term: its stored ones, which the
+    Newton assembly reuses)."""
+    return term.quadratic_parts()[2] if term.is_quadratic else term.run("full", x)[2]
 
 
-def auto_alpha0(limit):
-    """A safe alpha0 for a computed stability limit."""
-    return min(SAFE_FRACTION * limit, AUTO_CAP)
+def centroids(term):
+    """Centroid of each element of a term, shape (dim, elements)."""
+    W = term.W[:term.nel]
+    return (np.einsum("eq,eqd->de", W, term.x[:term.nel]) / W.sum(1))
+

@@ -1,9 +1,24 @@
-"""The stability limit of alpha0: the inverse-estimate constant C_I of a multiplier.
+"""The stability limits of alpha0: inverse estimates, cell by cell.
 
-J_h is convex when  alpha0 * sum_T int (alpha/alpha0) lambda(v)^2 < a(v, v)
-for all v, i.e. alpha0 < 1/C_I with C_I the largest eigenvalue of the pencil
-B v = mu K v (B from the multiplier term, K the Hessian of the energy).
-C_I does not depend on h for shape-regular refinements, so a coarse mesh gives it.
+With alpha = alpha0_T h_T^k / stiffness on the elements T of a constraint, the Hessian of
+J_h is at least  K - sum_T alpha0_T B_T  (K: Hessian of the energy J; B_T: Hessian of
+int_T 1/2 (alpha/alpha0) lambda^2; the [.]_+ term only adds a positive semidefinite part).
+Write K = sum_C K_C + R, K_C the Hessian of all of the energy's cell terms on cell C and
+R >= 0 the rest (e.g. facet terms of a convex energy), and B_C = sum of the B_T of the
+elements T owned by C (a facet by the cell it bounds, a cell by itself).  If on every cell
+
+    alpha0_C v^T B_C v <= v^T K_C v    for all local v (fixed dofs zero),           (*)
+
+then summing over the cells, sum_T alpha0_T v^T B_T v <= sum_C v^T K_C v <= v^T K v: J_h is
+convex.  The largest alpha0_C in (*) is the local limit 1/mu_C, mu_C the largest eigenvalue
+of B_C v = mu K_C v on the local space modulo the kernel of K_C (B_C vanishes there: lambda
+does not see the energy's kernel, e.g. rigid motions).  Constraints sharing a cell share its
+K_C: J_h is convex when on every cell sum_c alpha0_c / limit_c <= 1 ('auto' takes 1/2 of
+each limit: two constraints on a cell).  The limit depends on the cell's shape, not its
+size, so graded and anisotropic meshes get a small alpha0 only where their cells need it.
+
+The cells' problems are small and dense; all are solved at once (batched).  The global
+pencil B v = mu K v (one value for the whole mesh, sparse LU) stays as a diagnostic.
 """
 import numpy as np
 import scipy.linalg as sla
@@ -11,16 +26,92 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 DENSE_LIMIT = 3000
-NEGLIGIBLE = 1e-8  # C_I below this: the multiplier does not depend on u (e.g. P1 Laplacian)
+NEGLIGIBLE = 1e-8  # mu below this: the multiplier does not depend on u (e.g. P1 Laplacian)
+KERNEL_SHIFT = 1e-10  # K + shift * (mean diagonal) I: the kernel of K, where B vanishes
+
+
+def local_limits(B, B_dofs, owners, K_parts, free):
+    """The local limit 1/mu_C of each constraint element's cell C (inf where mu_C = 0).
+
+    B: (elements, m, m) element Hessians of int 1/2 (alpha/alpha0) lambda^2, B_dofs
+    (elements, m) their global dofs, owners (elements,) the cells owning them;
+    K_parts: [(K_e (cells, n_e, n_e), dofs (cells, n_e))] element Hessians of the energy's
+    cell terms on the owners' mesh; free: boolean mask of the free global dofs."""
+    cells, owner = np.unique(owners, return_inverse=True)
+    rank = _rank_within(owner, cells.size)  # the element's slot among those of its cell
+    m, slots = B_dofs.shape[1], int(rank.max()) + 1
+    columns = rank[:, None] * m + np.arange(m)
+    side_by_side = np.full((cells.size, slots * m), -1, dtype=np.int64)
+    side_by_side[owner[:, None], columns] = B_dofs
+    local, positions = _numbering([d[cells] for _, d in K_parts] + [side_by_side])
+    n = local.shape[1]
+    K = sum(_scatter(Ke[cells], np.arange(cells.size), pos, n, cells.size)
+            for (Ke, _), pos in zip(K_parts, positions))
+    Bc = _scatter(B, owner, positions[-1][owner[:, None], columns], n, cells.size)
+    mu = largest_local_eigenvalues(Bc, K, (local >= 0) & free[np.maximum(local, 0)])
+    limit = np.full(cells.size, np.inf)
+    np.divide(1.0, mu, out=limit, where=mu > 0)
+    return limit[owner]
+
+
+def largest_local_eigenvalues(B, K, mask):
+    """max v^T B v / v^T K v of each (B, K) in a batch over the components in mask (the others
+    are zero), on the complement of the kernel of K where B vanishes:  the largest eigenvalue
+    of L^-1 B L^-T,  L L^T = K + 1e-10 (mean diagonal) I."""
+    both = mask[:, :, None] & mask[:, None, :]
+    K, B = np.where(both, K, 0.0), np.where(both, B, 0.0)
+    diagonal = np.diagonal(K, axis1=1, axis2=2)
+    scale = np.where(mask, diagonal, 0).sum(1) / np.maximum(mask.sum(1), 1)
+    scale = np.where(scale > 0, scale, 1.0)[:, None]
+    shift = np.where(mask, KERNEL_SHIFT * scale, scale)  # left-out components: K = scale
+    L = np.linalg.cholesky(K + shift[:, :, None] * np.eye(K.shape[1]))
+    X = np.linalg.solve(L, B)
+    M = np.linalg.solve(L, np.swapaxes(X, 1, 2))
+    mu = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, 1, 2)))[:, -1]
+    return np.where(mu > NEGLIGIBLE, mu, 0.0)
+
+
+def _rank_within(group, ngroups):
+    """0, 1, ... for the members of each group, in order."""
+    order = np.argsort(group, kind="stable")
+    first = np.searchsorted(group[order], np.arange(ngroups))
+    rank = np.empty_like(group)
+    rank[order] = np.arange(group.size) - first[group[order]]
+    return rank
+
+
+def _numbering(blocks):
+    """Rows of global dofs (-1: none) numbered locally: per row the distinct dofs of all the
+    blocks, sorted (padded with -1), and each block's positions among them."""
+    dofs = np.concatenate(blocks, axis=1)
+    order = np.argsort(dofs, axis=1, kind="stable")
+    s = np.take_along_axis(dofs, order, axis=1)
+    new = np.ones_like(s, dtype=bool)
+    new[:, 1:] = s[:, 1:] != s[:, :-1]
+    new &= s >= 0
+    rank = np.cumsum(new, axis=1) - 1
+    local = np.full((dofs.shape[0], int(rank[:, -1].max()) + 1), -1, dtype=np.int64)
+    r, c = np.nonzero(new)
+    local[r, rank[r, c]] = s[r, c]
+    positions = np.empty_like(rank)
+    np.put_along_axis(positions, order, np.where(s >= 0, rank, -1), axis=1)
+    return local, np.split(positions, np.cumsum([b.shape[1] for b in blocks])[:-1], axis=1)
+
+
+def _scatter(H, target, pos, n, count):
+    """The element matrices H (k, a, a) summed into a batch (count, n, n): H[i] into the rows
+    and columns pos[i] of matrix target[i]."""
+    index = (target[:, None, None] * n + pos[:, :, None]) * n + pos[:, None, :]
+    return np.bincount(index.ravel(), weights=H.ravel(), minlength=count * n * n).reshape(count, n, n)
 
 
 def largest_generalized_eigenvalue(B, K):
-    """max v^T B v / v^T K v for symmetric B >= 0 and K >= 0 (K may have a kernel on
-    which B vanishes; it is regularized by 1e-10 of its mean diagonal)."""
+    """max v^T B v / v^T K v for sparse symmetric B >= 0 and K >= 0 (K may have a kernel on
+    which B vanishes; it is regularized by 1e-10 of its mean diagonal): the global check."""
     n = K.shape[0]
     if B.nnz == 0 or abs(B).max() == 0:
         return 0.0
-    shift = 1e-10 * K.diagonal().mean()
+    shift = KERNEL_SHIFT * K.diagonal().mean()
     Kr = (K + shift * sp.eye(n)).tocsc()
     if n <= DENSE_LIMIT:
         mu = float(sla.eigh(B.toarray(), Kr.toarray(), eigvals_only=True)[-1])

@@ -27,9 +27,10 @@ def mesh_size(problem):
     return float(cell_diameters(problem.fields[0].mesh).max())
 
 
-def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, progress=False):
+def solve_nested(case, level, degree, p, limits=None, newton_options=None, first=0, progress=False):
     """Solve levels first .. level, each from the previous solution; returns the finest
-    (problem, result) and the Newton iterations of every level."""
+    (problem, result) and the Newton iterations of every level.  limits: given uniform
+    alpha0 limits (None: each level's element-local ones)."""
     prev, its = None, []
     for k in range(first, level + 1):
         problem = case.problem(k, degree, p, limits)
@@ -45,17 +46,29 @@ def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, p
     return problem, result, its
 
 
+def alpha0_summary(problem):
+    """alpha0 and its stability limit per constraint with a multiplier: min / median / max
+    over the elements (flat keys, e.g. contact_alpha0_min)."""
+    out = {}
+    for c in problem.constraints:
+        if c.multiplier is None:
+            continue
+        for what, v in (("alpha0", problem.alpha0[c.name]), ("alpha0_limit", problem.limits[c.name])):
+            for stat, fn in (("min", np.min), ("median", np.median), ("max", np.max)):
+                out[f"{c.name}_{what}_{stat}"] = float(fn(v))
+    return out
+
+
 def run_study(case, levels, degree, p, start=0, progress=True, newton_options=None):
     """Solve levels start .. start+levels-1; returns the list of rows (dicts).
 
     A case's optional hook study_extra(problem, result, row) adds its own quantities."""
     extra = getattr(case.module, "study_extra", None)
-    limits = case.alpha0_limits(degree, p)
     rows, prev = [], None
     out = sys.stderr
     for i, level in enumerate(range(start, start + levels)):
         t0 = time.perf_counter()
-        problem = case.problem(level, degree, p, limits)
+        problem = case.problem(level, degree, p)
         if progress:
             print(f"[{i + 1}/{levels}] level {level}: {problem.free.size} unknowns ...",
                   end="", file=out, flush=True)
@@ -68,6 +81,7 @@ def run_study(case, levels, degree, p, start=0, progress=True, newton_options=No
                    energy=result.energy, active_count=result.active_count,
                    contact_measure=result.contact_measure, max_violation=result.max_violation,
                    seconds=time.perf_counter() - t0, compile_seconds=result.timings["compile"])
+        row.update(alpha0_summary(problem))
         if x0 is not None:
             # a case may define the successive difference itself (non-nested spaces, e.g. Morley)
             difference = getattr(case.module, "difference", None)
