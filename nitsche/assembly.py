@@ -232,7 +232,7 @@ class Term:
 
     def kernel(self, kind):
         """The compiled chunk kernel: 'energy', 'gradient' (energy, gradient), 'full'
-        (energy, gradient, Hessian) or 'values'."""
+        (energy, gradient, Hessian), 'jacobian' (per point) or 'values'."""
         if kind in self._kernels:
             return self._kernels[kind]
         key = (kind, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
@@ -252,17 +252,18 @@ class Term:
         self._kernels[kind] = _COMPILED[key]
         return self._kernels[kind]
 
-    def run(self, kind, x):
-        """Apply a kernel to all elements for the global dof vector x."""
+    def run(self, kind, x, elements=None):
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x."""
         kern = self.kernel(kind)
         us = [x[d] for d in self.field_dofs]
+        nel = self.nel if elements is None else len(elements)
         outs = []
-        for s in range(0, self.nel, self.chunk):
-            sl = slice(s, s + self.chunk)
+        for s in range(0, nel, self.chunk):
+            sl = slice(s, s + self.chunk) if elements is None else elements[s: s + self.chunk]
             Ts = [T if shared else _pad(T[sl], self.chunk) for T, shared in zip(self.T, self.shared)]
             rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
             outs.append(kern(*Ts, *rest))
-        return [np.concatenate([np.asarray(o[i]) for o in outs])[:self.nel] for i in range(len(outs[0]))]
+        return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
@@ -341,13 +342,23 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
         return (jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw),
                 contract_hessian(Ts, Wd2w))
 
+    def jacobian(*a):
+        """sqrt(W) dw/dz T at every point (w: e.g. a multiplier), shape (chunk, nq, dofs)."""
+        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        z = jets(Ts, us).reshape(chunk * nq, m)
+        dw = jax.vmap(jax.grad(point_fn))(z, *points(W, x, n, h, alpha0))
+        rdw = jnp.sqrt(W)[..., None] * dw.reshape(chunk, nq, m)
+        return (jnp.concatenate([jnp.einsum("eqc,eqck->eqk", rdw[..., i:j], T)
+                                 for T, i, j in zip(Ts, offsets[:-1], offsets[1:])], axis=2),)
+
     def values(*a):
         Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
         out = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0))
         return tuple(o.reshape(chunk, nq) for o in out)
 
-    return {"energy": energy, "gradient": gradient, "full": full, "values": values}[kind]
+    return {"energy": energy, "gradient": gradient, "full": full, "jacobian": jacobian,
+            "values": values}[kind]
 
 
 class Assembler:

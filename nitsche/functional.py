@@ -170,15 +170,14 @@ class Constraint:
         """(g, lambda, alpha) at a point: for reports, contact pressure and active sets."""
         return self._parts()
 
-    def multiplier_square(self):
-        """1/2 alpha lambda^2 with the element's alpha0 (1: its Hessian is the B of the
-        stability eigenproblems)."""
+    def scaled_multiplier(self):
+        """sqrt(alpha) lambda with the element's alpha0 (1: sqrt(alpha/alpha0) lambda, whose
+        Gram matrix sum_q W D(.)^T D(.) is the B of the stability eigenproblems)."""
         multiplier, scaling, mn = self.multiplier, self.scaling, self.multiplier_names
         k, stiffness = scaling.h_power, scaling.stiffness
 
         def density(args):
-            lam = call(multiplier, mn, args)
-            return 0.5 * args[ALPHA0] * args["h"] ** k / stiffness * lam ** 2
+            return jnp.sqrt(args[ALPHA0] * args["h"] ** k / stiffness) * call(multiplier, mn, args)
         return density
 
 

@@ -95,45 +95,52 @@ class Problem:
         """{constraint name: the element-local stability limit of alpha0 on each element}
         (nitsche.stability): batched eigenproblems of the cells that own the elements."""
         from .stability import local_limits
-        constraints = self.constraints if constraints is None else constraints
+        names = {c.name for c in (self.constraints if constraints is None else constraints)}
         x = self.initial(None)
         free = np.zeros(self.ndofs, bool)
         free[self.free] = True
         out = {}
-        for c in constraints:
-            if c.multiplier is None:
+        for c, t in zip(self.constraints, self.constraint_terms):
+            if c.name not in names or c.multiplier is None:
                 continue
             mesh = c.on.mesh
             if not self._multiplier_on_own_mesh(c):
                 raise ValueError(f"constraint '{c.name}': element-local alpha0 limits need the "
                                  "multiplier's fields on the constraint's own mesh; give alpha0 as "
                                  "a number (Problem.global_limits() checks it)")
-            K = [(element_hessians(t, x), t.global_dofs) for t in self.energy_terms
-                 if t.measure.kind == "cells" and t.measure.mesh is mesh]
-            if not K:
+            energy = [e for e in self.energy_terms
+                      if e.measure.kind == "cells" and e.measure.mesh is mesh]
+            if not energy:
                 raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
                                  "constraint's mesh to bound its multiplier")
-            B = self._multiplier_term(c)
-            out[c.name] = local_limits(element_hessians(B, x), B.global_dofs, B.cells, K, free)
+            B = t.with_pointwise(c.scaled_multiplier())  # on the constraint's tabulations
+            B.alpha0 = np.ones(t.nel)
+            out[c.name] = local_limits(*multiplier_jacobian(B, c, x), t.cells, free,
+                                       lambda cells: [cell_hessians(e, x, cells) for e in energy])
         return out
 
     def _multiplier_on_own_mesh(self, c):
         return all(self.by_name[k].mesh is c.on.mesh for k in c.multiplier_names if k in self.by_name)
 
-    def _multiplier_term(self, c, alpha0=None):
-        """The term int 1/2 alpha lambda^2 of a constraint (alpha0 = 1 unless given)."""
-        term = Term(c.multiplier_square(), c.multiplier_names, c.on, self.fields, self.offsets,
+    def _gram(self, c, alpha0=None):
+        """B (free dofs): the Gram matrix of sqrt(alpha/alpha0) D lambda of a constraint, or
+        of sqrt(alpha) D lambda with the given alpha0 per element (a fresh term: the
+        constraint's own may have released its tabulations)."""
+        term = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
                     f"the multiplier of constraint '{c.name}'")
         if alpha0 is not None:
             term.alpha0 = alpha0
-        return term
+        G, dofs = multiplier_jacobian(term, c, self.initial(None))
+        n = dofs.shape[1]
+        B = sp.coo_matrix((np.einsum("eqk,eql->ekl", G, G).ravel(),
+                           (np.repeat(dofs, n, axis=1).ravel(), np.tile(dofs, (1, n)).ravel())),
+                          shape=(self.ndofs, self.ndofs)).tocsr()
+        return B[self.free][:, self.free]
 
-    def _pencil(self, terms):
-        """(B, K) on the free dofs: B the Hessian of the terms, K that of the energy J."""
-        x = self.initial(None)
-        K = Assembler(self.energy_terms, self.ndofs).hessian(x)[self.free][:, self.free]
-        B = Assembler(terms, self.ndofs).hessian(x)[self.free][:, self.free]
-        return B, K
+    def _stiffness(self):
+        """K (free dofs): the Hessian of the energy J."""
+        K = Assembler(self.energy_terms, self.ndofs).hessian(self.initial(None))
+        return K[self.free][:, self.free]
 
     def global_limits(self, constraints=None):
         """Diagnostic: {name: 1/C_I}, the one alpha0 for all elements up to which J_h is
@@ -144,7 +151,7 @@ class Problem:
         limits = {}
         for c in constraints:
             if c.multiplier is not None:
-                mu = largest_generalized_eigenvalue(*self._pencil([self._multiplier_term(c)]))
+                mu = largest_generalized_eigenvalue(self._gram(c), self._stiffness())
                 limits[c.name] = 1.0 / mu if mu > 0 else np.inf
         return limits
 
@@ -153,9 +160,11 @@ class Problem:
         the sum over constraints of int 1/2 alpha lambda^2 with this problem's alpha0 on
         each element: J_h is convex if it is at most 1 (global sparse LU of K)."""
         from .stability import largest_generalized_eigenvalue
-        terms = [self._multiplier_term(c, self.alpha0[c.name]) for c in self.constraints
+        grams = [self._gram(c, self.alpha0[c.name]) for c in self.constraints
                  if c.multiplier is not None]
-        return largest_generalized_eigenvalue(*self._pencil(terms)) if terms else 0.0
+        if not grams:
+            return 0.0
+        return largest_generalized_eigenvalue(sum(grams[1:], grams[0]), self._stiffness())
 
     # -- vectors ----------------------------------------------------------------
     def initial(self, x0):
@@ -264,10 +273,20 @@ class Problem:
         return rep
 
 
-def element_hessians(term, x):
-    """The element Hessians of a term at x (of a quadratic term: its stored ones, which the
-    Newton assembly reuses)."""
-    return term.quadratic_parts()[2] if term.is_quadratic else term.run("full", x)[2]
+def cell_hessians(term, x, cells):
+    """The element Hessians of an energy term at x on the given cells, and their dofs (of a
+    quadratic term: from all of its element Hessians, stored for the Newton assembly)."""
+    H = term.quadratic_parts()[2][cells] if term.is_quadratic else term.run("full", x, cells)[2]
+    return H, term.global_dofs[cells]
+
+
+def multiplier_jacobian(term, c, x):
+    """sqrt(W alpha) D lambda at each point of each element of a term of
+    c.scaled_multiplier(), on the dofs of the multiplier's fields: (elements, points, dofs)
+    and the global dofs (elements, dofs)."""
+    mine = np.concatenate([np.full(d.shape[1], f.name in c.multiplier_names)
+                           for d, f in zip(term.field_dofs, term.fields)])
+    return term.run("jacobian", x)[0][:, :, mine], term.global_dofs[:, mine]
 
 
 def centroids(term):

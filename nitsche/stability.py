@@ -2,7 +2,8 @@
 
 With alpha = alpha0_T h_T^k / stiffness on the elements T of a constraint, the Hessian of
 J_h is at least  K - sum_T alpha0_T B_T  (K: Hessian of the energy J; B_T: Hessian of
-int_T 1/2 (alpha/alpha0) lambda^2; the [.]_+ term only adds a positive semidefinite part).
+int_T 1/2 (alpha/alpha0) lambda^2 = sum_q W (alpha/alpha0) D lambda^T D lambda for a linear
+lambda; the [.]_+ term only adds a positive semidefinite part).
 Write K = sum_C K_C + R, K_C the Hessian of all of the energy's cell terms on cell C and
 R >= 0 the rest (e.g. facet terms of a convex energy), and B_C = sum of the B_T of the
 elements T owned by C (a facet by the cell it bounds, a cell by itself).  If on every cell
@@ -30,24 +31,26 @@ NEGLIGIBLE = 1e-8  # mu below this: the multiplier does not depend on u (e.g. P1
 KERNEL_SHIFT = 1e-10  # K + shift * (mean diagonal) I: the kernel of K, where B vanishes
 
 
-def local_limits(B, B_dofs, owners, K_parts, free):
+def local_limits(G, B_dofs, owners, free, cell_hessians):
     """The local limit 1/mu_C of each constraint element's cell C (inf where mu_C = 0).
 
-    B: (elements, m, m) element Hessians of int 1/2 (alpha/alpha0) lambda^2, B_dofs
-    (elements, m) their global dofs, owners (elements,) the cells owning them;
-    K_parts: [(K_e (cells, n_e, n_e), dofs (cells, n_e))] element Hessians of the energy's
-    cell terms on the owners' mesh; free: boolean mask of the free global dofs."""
+    G: (elements, points, m) sqrt(W alpha/alpha0) D lambda at the element's quadrature
+    points, so that B_T = G^T G (the Hessian of int_T 1/2 (alpha/alpha0) lambda^2 for a
+    linear lambda); B_dofs (elements, m) the global dofs; owners (elements,) the cells;
+    free: boolean mask of the free global dofs; cell_hessians(cells) -> [(K_e (cells, n_e,
+    n_e), dofs (cells, n_e))] the Hessians of the energy's cell terms on those cells."""
     cells, owner = np.unique(owners, return_inverse=True)
     rank = _rank_within(owner, cells.size)  # the element's slot among those of its cell
     m, slots = B_dofs.shape[1], int(rank.max()) + 1
     columns = rank[:, None] * m + np.arange(m)
     side_by_side = np.full((cells.size, slots * m), -1, dtype=np.int64)
     side_by_side[owner[:, None], columns] = B_dofs
-    local, positions = _numbering([d[cells] for _, d in K_parts] + [side_by_side])
+    K_parts = cell_hessians(cells)
+    local, positions = _numbering([d for _, d in K_parts] + [side_by_side])
     n = local.shape[1]
-    K = sum(_scatter(Ke[cells], np.arange(cells.size), pos, n, cells.size)
+    K = sum(_scatter(Ke, np.arange(cells.size), pos, n, cells.size)
             for (Ke, _), pos in zip(K_parts, positions))
-    Bc = _scatter(B, owner, positions[-1][owner[:, None], columns], n, cells.size)
+    Bc = _scatter(np.einsum("eqk,eql->ekl", G, G), owner, positions[-1][owner[:, None], columns], n, cells.size)
     mu = largest_local_eigenvalues(Bc, K, (local >= 0) & free[np.maximum(local, 0)])
     limit = np.full(cells.size, np.inf)
     np.divide(1.0, mu, out=limit, where=mu > 0)
@@ -64,9 +67,8 @@ def largest_local_eigenvalues(B, K, mask):
     scale = np.where(mask, diagonal, 0).sum(1) / np.maximum(mask.sum(1), 1)
     scale = np.where(scale > 0, scale, 1.0)[:, None]
     shift = np.where(mask, KERNEL_SHIFT * scale, scale)  # left-out components: K = scale
-    L = np.linalg.cholesky(K + shift[:, :, None] * np.eye(K.shape[1]))
-    X = np.linalg.solve(L, B)
-    M = np.linalg.solve(L, np.swapaxes(X, 1, 2))
+    Li = np.linalg.inv(np.linalg.cholesky(K + shift[:, :, None] * np.eye(K.shape[1])))
+    M = Li @ B @ np.swapaxes(Li, 1, 2)
     mu = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, 1, 2)))[:, -1]
     return np.where(mu > NEGLIGIBLE, mu, 0.0)
 
