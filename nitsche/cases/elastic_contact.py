@@ -43,6 +43,10 @@ PARAMETERS = {
     "R": (2.0, "hertz: radius of the parabolic profile g0 = x^2 / (2R)"),
     "delta": (0.01, "hertz: downward displacement of body 2's top"),
     "L": (2.0, "hertz: width of the half model and depth of body 1"),
+    "hx": (0.025, "hertz: cell width at the contact (x < 0.1 L), relative to L"),
+    "hy": (0.025, "hertz: thickness of the cell layers at the interface (y within 0.05 L), "
+                  "relative to L"),
+    "growth": (1.3, "hertz: ratio of neighbouring cell sizes away from the contact"),
 }
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.0}  # punch: limited by corner and free-boundary singularities
@@ -94,8 +98,8 @@ def _meshes(level, p):
             m2 = MeshTri.init_tensor(np.linspace(0, 1, n + 1), np.linspace(1, 2, n + 1))
         return m1, m2
     if p.setup == "hertz":
-        xs = graded(p.L, 0.1 * p.L, 4)
-        ys = graded(p.L, 0.05 * p.L, 2)
+        xs = graded(p.L, 0.1 * p.L, round(0.1 / p.hx), p.growth)
+        ys = graded(p.L, 0.05 * p.L, round(0.05 / p.hy), p.growth)
         m1 = MeshTri.init_tensor(xs, -ys[::-1]).refined(level)
         m2 = MeshTri.init_tensor(xs, ys[ys <= 0.5 * p.L + 1e-12]).refined(level)
         return m1, m2
