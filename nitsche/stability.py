@@ -50,7 +50,8 @@ def local_limits(G, B_dofs, owners, free, cell_hessians):
     n = local.shape[1]
     K = sum(_scatter(Ke, np.arange(cells.size), pos, n, cells.size)
             for (Ke, _), pos in zip(K_parts, positions))
-    Bc = _scatter(np.einsum("eqk,eql->ekl", G, G), owner, positions[-1][owner[:, None], columns], n, cells.size)
+    B = np.einsum("eqk,eql->ekl", G, G)
+    Bc = _scatter(B, owner, positions[-1][owner[:, None], columns], n, cells.size)
     mu = largest_local_eigenvalues(Bc, K, (local >= 0) & free[np.maximum(local, 0)])
     limit = np.full(cells.size, np.inf)
     np.divide(1.0, mu, out=limit, where=mu > 0)
