@@ -28,7 +28,7 @@ import scipy.sparse.linalg as spla
 
 DENSE_LIMIT = 3000
 NEGLIGIBLE = 1e-8  # mu below this: the multiplier does not depend on u (e.g. P1 Laplacian)
-KERNEL_SHIFT = 1e-10  # K + shift * (mean diagonal) I: the kernel of K, where B vanishes
+KERNEL_SHIFT = 1e-10  # S K S + shift I (S = diag(K)^-1/2): the kernel of K, where B vanishes
 
 
 def local_limits(G, B_dofs, owners, free, cell_hessians):
@@ -60,14 +60,15 @@ def local_limits(G, B_dofs, owners, free, cell_hessians):
 
 def largest_local_eigenvalues(B, K, mask):
     """max v^T B v / v^T K v of each (B, K) in a batch over the components in mask (the others
-    are zero), on the complement of the kernel of K where B vanishes:  the largest eigenvalue
-    of L^-1 B L^-T,  L L^T = K + 1e-10 (mean diagonal) I."""
+    are zero), on the complement of the kernel of K where B vanishes: with S = diag(K)^-1/2
+    (the dofs' scales may differ by powers of h, e.g. Hermite dofs), the largest eigenvalue of
+    L^-1 S B S L^-T,  L L^T = S K S + 1e-10 I."""
     both = mask[:, :, None] & mask[:, None, :]
-    K, B = np.where(both, K, 0.0), np.where(both, B, 0.0)
     diagonal = np.diagonal(K, axis1=1, axis2=2)
-    scale = np.where(mask, diagonal, 0).sum(1) / np.maximum(mask.sum(1), 1)
-    scale = np.where(scale > 0, scale, 1.0)[:, None]
-    shift = np.where(mask, KERNEL_SHIFT * scale, scale)  # left-out components: K = scale
+    s = np.where(mask & (diagonal > 0), 1 / np.sqrt(np.abs(diagonal) + (diagonal <= 0)), 0.0)
+    S = s[:, :, None] * s[:, None, :]
+    K, B = np.where(both, K * S, 0.0), np.where(both, B * S, 0.0)
+    shift = np.where(mask, KERNEL_SHIFT, 1.0)  # left-out components: K = 1, B = 0
     Li = np.linalg.inv(np.linalg.cholesky(K + shift[:, :, None] * np.eye(K.shape[1])))
     M = Li @ B @ np.swapaxes(Li, 1, 2)
     mu = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, 1, 2)))[:, -1]
@@ -109,13 +110,15 @@ def _scatter(H, target, pos, n, count):
 
 
 def largest_generalized_eigenvalue(B, K):
-    """max v^T B v / v^T K v for sparse symmetric B >= 0 and K >= 0 (K may have a kernel on
-    which B vanishes; it is regularized by 1e-10 of its mean diagonal): the global check."""
+    """max v^T B v / v^T K v for sparse symmetric B >= 0 and K >= 0 (the global check): with
+    S = diag(K)^-1/2, of S B S v = mu (S K S + 1e-10 I) v (K may have a kernel, where B
+    vanishes)."""
     n = K.shape[0]
     if B.nnz == 0 or abs(B).max() == 0:
         return 0.0
-    shift = KERNEL_SHIFT * K.diagonal().mean()
-    Kr = (K + shift * sp.eye(n)).tocsc()
+    d = K.diagonal()
+    S = sp.diags(np.where(d > 0, 1 / np.sqrt(np.abs(d) + (d <= 0)), 1.0))
+    B, Kr = S @ B @ S, (S @ K @ S + KERNEL_SHIFT * sp.eye(n)).tocsc()
     if n <= DENSE_LIMIT:
         mu = float(sla.eigh(B.toarray(), Kr.toarray(), eigvals_only=True)[-1])
     else:

@@ -161,3 +161,12 @@ def test_result_json_and_vtu_report_alpha0_per_element(tmp_path):
     a = np.concatenate(cells["contact_alpha0"])
     assert np.nanmin(a) == pytest.approx(data["constraints"]["contact"]["alpha0_min"])
     assert np.isnan(a).any()  # cells without a contact facet
+
+
+def test_limits_do_not_depend_on_the_level():
+    """Shape, not size: the same limits on levels 0 and 4, also for Hermite (BFS) dofs whose
+    scales differ by powers of h (the kernel regularization is relative to each dof's scale)."""
+    case = get("plate-unilateral")
+    coarse, fine = (case.problem(k, 3, case.parameters()).limits["support"] for k in (0, 4))
+    assert fine.min() == pytest.approx(coarse.min(), rel=1e-6)  # corner cells: two facets
+    assert fine.max() == pytest.approx(coarse.max(), rel=1e-6)
