@@ -54,6 +54,8 @@ class Scaling:
     user gave; each Problem resolves it to one alpha0 per element."""
 
     def __init__(self, alpha0, h_power, stiffness=1.0):
+        if isinstance(alpha0, str) and alpha0.strip() == "auto":
+            alpha0 = "auto"
         self.fraction = _fraction(alpha0)
         if self.fraction is None and not callable(alpha0):
             try:
@@ -72,10 +74,6 @@ class Scaling:
     def needs_limit(self):
         """alpha0 is a fraction of the stability limit ('auto' or 'F*limit')."""
         return self.fraction is not None
-
-    def relative(self, h):
-        """alpha / alpha0 = h^k / stiffness."""
-        return h ** self.h_power / self.stiffness
 
     def per_element(self, limit, x, h):
         """alpha0 on each element from its stability limit, centroid x (dim, elements) and
@@ -99,7 +97,7 @@ def _fraction(alpha0):
     """F of 'F*limit' (1/2 for 'auto'); None for other values."""
     if not isinstance(alpha0, str):
         return None
-    if alpha0.strip() == "auto":
+    if alpha0 == "auto":
         return AUTO_FRACTION
     head, star, tail = alpha0.partition("*")
     try:
