@@ -170,3 +170,11 @@ def test_limits_do_not_depend_on_the_level():
     coarse, fine = (case.problem(k, 3, case.parameters()).limits["support"] for k in (0, 4))
     assert fine.min() == pytest.approx(coarse.min(), rel=1e-6)  # corner cells: two facets
     assert fine.max() == pytest.approx(coarse.max(), rel=1e-6)
+
+
+def test_fraction_of_the_limit_on_the_command_line(tmp_path):
+    assert main(["run", "dirichlet", "--level", "1", "--degree", "2", "--out", str(tmp_path),
+                 "--set", "alpha0=0.3*limit"]) == 0
+    c = json.loads((tmp_path / "result.json").read_text())["constraints"]["dirichlet"]
+    assert c["alpha0_min"] == pytest.approx(0.3 * c["alpha0_limit_min"])
+    assert c["alpha0_max"] == pytest.approx(0.3 * c["alpha0_limit_max"])
