@@ -28,6 +28,7 @@ import scipy.sparse.linalg as spla
 
 DENSE_LIMIT = 3000
 NEGLIGIBLE = 1e-8  # mu below this: the multiplier does not depend on u (e.g. P1 Laplacian)
+BATCH_ENTRIES = 2 ** 22  # numbers per dense batch of cells (32 MB; the cells are chunked)
 KERNEL_SHIFT = 1e-10  # S K S + shift I (S = diag(K)^-1/2): the kernel of K, where B vanishes
 
 
@@ -38,8 +39,23 @@ def local_limits(G, B_dofs, owners, free, cell_hessians):
     points, so that B_T = G^T G (the Hessian of int_T 1/2 (alpha/alpha0) lambda^2 for a
     linear lambda); B_dofs (elements, m) the global dofs; owners (elements,) the cells;
     free: boolean mask of the free global dofs; cell_hessians(cells) -> [(K_e (cells, n_e,
-    n_e), dofs (cells, n_e))] the Hessians of the energy's cell terms on those cells."""
+    n_e), dofs (cells, n_e))] the Hessians of the energy's cell terms on those cells.
+    The cells are taken in chunks that keep each dense batch near BATCH_ENTRIES numbers."""
     cells, owner = np.unique(owners, return_inverse=True)
+    order = np.argsort(owner, kind="stable")
+    starts = np.searchsorted(owner[order], np.arange(cells.size + 1))
+    step = max(1, BATCH_ENTRIES // (4 * B_dofs.shape[1] ** 2))
+    limit = np.empty(cells.size)
+    for a in range(0, cells.size, step):
+        b = min(a + step, cells.size)
+        mine = order[starts[a]: starts[b]]  # the elements of cells a .. b-1
+        limit[a:b] = _cell_limits(G[mine], B_dofs[mine], owner[mine] - a, cells[a:b], free,
+                                  cell_hessians)
+    return limit[owner]
+
+
+def _cell_limits(G, B_dofs, owner, cells, free, cell_hessians):
+    """local_limits for the elements of the given cells (owner: index into cells)."""
     rank = _rank_within(owner, cells.size)  # the element's slot among those of its cell
     m, slots = B_dofs.shape[1], int(rank.max()) + 1
     columns = rank[:, None] * m + np.arange(m)
@@ -55,7 +71,7 @@ def local_limits(G, B_dofs, owners, free, cell_hessians):
     mu = largest_local_eigenvalues(Bc, K, (local >= 0) & free[np.maximum(local, 0)])
     limit = np.full(cells.size, np.inf)
     np.divide(1.0, mu, out=limit, where=mu > 0)
-    return limit[owner]
+    return limit
 
 
 def largest_local_eigenvalues(B, K, mask):

@@ -10,6 +10,7 @@ from skfem import ElementTriP1, ElementTriP2, ElementVector, MeshTri
 
 import nitsche as ni
 import nitsche.assembly
+import nitsche.stability
 from nitsche.cases import elastic_contact, get
 from nitsche.cli import main
 from nitsche.ops import dot, grad, sym_grad
@@ -178,3 +179,11 @@ def test_fraction_of_the_limit_on_the_command_line(tmp_path):
     c = json.loads((tmp_path / "result.json").read_text())["constraints"]["dirichlet"]
     assert c["alpha0_min"] == pytest.approx(0.3 * c["alpha0_limit_min"])
     assert c["alpha0_max"] == pytest.approx(0.3 * c["alpha0_limit_max"])
+
+
+def test_cells_in_chunks_give_the_same_limits(monkeypatch):
+    """Several elements per cell (the corners of the plate) across chunk boundaries."""
+    case = get("plate-unilateral")
+    problem = case.problem(1, 3, case.parameters())
+    monkeypatch.setattr(nitsche.stability, "BATCH_ENTRIES", 3000)  # about 3 cells per chunk
+    assert problem.local_limits()["support"] == pytest.approx(problem.limits["support"], rel=1e-12)
