@@ -97,7 +97,7 @@ def _run(case, args, p, out, options):
         options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
                                                        f"J_h {E:.12g}", file=sys.stderr)
     if args.nested:
-        problem, result, its = solve_nested(case, args.level, args.degree, p, None, options,
+        problem, result, its = solve_nested(case, args.level, args.degree, p, options,
                                             progress=True)
     else:
         problem = case.problem(args.level, args.degree, p)

@@ -27,13 +27,12 @@ def mesh_size(problem):
     return float(cell_diameters(problem.fields[0].mesh).max())
 
 
-def solve_nested(case, level, degree, p, limits=None, newton_options=None, first=0, progress=False):
+def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=False):
     """Solve levels first .. level, each from the previous solution; returns the finest
-    (problem, result) and the Newton iterations of every level.  limits: given uniform
-    alpha0 limits (None: each level's element-local ones)."""
+    (problem, result) and the Newton iterations of every level."""
     prev, its = None, []
     for k in range(first, level + 1):
-        problem = case.problem(k, degree, p, limits)
+        problem = case.problem(k, degree, p)
         result = problem.minimize(prolongate(*prev, problem) if prev else None,
                                   **(newton_options or {}))
         its.append(result.iterations)
