@@ -76,6 +76,13 @@ class Problem:
         needs = [c for c in self.constraints if c.multiplier is not None and c.name not in given
                  and (c.scaling.needs_limit or self._multiplier_on_own_mesh(c))]
         local = self.local_limits(needs)
+        for c in needs:
+            unbounded = int((local[c.name] == 0).sum())
+            if unbounded and c.scaling.needs_limit:
+                raise ValueError(f"constraint '{c.name}': on {unbounded} of its elements the energy "
+                                 "of the cell does not bound the multiplier (lambda is not zero on "
+                                 "the kernel of the cell's energy Hessian): no stability limit; give "
+                                 "alpha0 as a number, or check the energy and the multiplier")
         for c, t in zip(self.constraints, self.constraint_terms):
             limit = np.full(t.nel, given[c.name], dtype=float) if c.name in given \
                 else local.get(c.name, np.full(t.nel, np.inf))

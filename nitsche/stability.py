@@ -30,10 +30,12 @@ DENSE_LIMIT = 3000
 NEGLIGIBLE = 1e-8  # mu below this: the multiplier does not depend on u (e.g. P1 Laplacian)
 BATCH_ENTRIES = 2 ** 22  # numbers per dense batch of cells (32 MB; the cells are chunked)
 KERNEL_SHIFT = 1e-10  # S K S + shift I (S = diag(K)^-1/2): the kernel of K, where B vanishes
+SHIFT_SHARE = 1e-2  # mu above SHIFT_SHARE trace(S B S) / shift: B does not vanish on ker K
 
 
 def local_limits(G, B_dofs, owners, free, cell_hessians):
-    """The local limit 1/mu_C of each constraint element's cell C (inf where mu_C = 0).
+    """The local limit 1/mu_C of each constraint element's cell C (inf where mu_C = 0; 0 where
+    B_C does not vanish on the kernel of K_C: the cell's energy does not bound lambda).
 
     G: (elements, points, m) sqrt(W alpha/alpha0) D lambda at the element's quadrature
     points, so that B_T = G^T G (the Hessian of int_T 1/2 (alpha/alpha0) lambda^2 for a
@@ -69,25 +71,30 @@ def _cell_limits(G, B_dofs, owner, cells, free, cell_hessians):
     B = np.einsum("eqk,eql->ekl", G, G)
     Bc = _scatter(B, owner, positions[-1][owner[:, None], columns], n, cells.size)
     mu = largest_local_eigenvalues(Bc, K, (local >= 0) & free[np.maximum(local, 0)])
-    limit = np.full(cells.size, np.inf)
-    np.divide(1.0, mu, out=limit, where=mu > 0)
-    return limit
+    with np.errstate(divide="ignore"):
+        return np.where(mu > 0, 1.0 / mu, np.inf)
 
 
 def largest_local_eigenvalues(B, K, mask):
     """max v^T B v / v^T K v of each (B, K) in a batch over the components in mask (the others
     are zero), on the complement of the kernel of K where B vanishes: with S = diag(K)^-1/2
     (the dofs' scales may differ by powers of h, e.g. Hermite dofs), the largest eigenvalue of
-    L^-1 S B S L^-T,  L L^T = S K S + 1e-10 I."""
+    L^-1 S B S L^-T,  L L^T = S K S + 1e-10 I.  inf where that value comes from the shift
+    (1e-10 mu > 1e-2 trace(S B S)): B does not vanish on the kernel of K."""
     both = mask[:, :, None] & mask[:, None, :]
     diagonal = np.diagonal(K, axis1=1, axis2=2)
-    s = np.where(mask & (diagonal > 0), 1 / np.sqrt(np.abs(diagonal) + (diagonal <= 0)), 0.0)
+    s = np.where(mask, 1 / np.sqrt(np.where(diagonal > 0, diagonal, 1.0)), 0.0)
     S = s[:, :, None] * s[:, None, :]
     K, B = np.where(both, K * S, 0.0), np.where(both, B * S, 0.0)
     shift = np.where(mask, KERNEL_SHIFT, 1.0)  # left-out components: K = 1, B = 0
-    Li = np.linalg.inv(np.linalg.cholesky(K + shift[:, :, None] * np.eye(K.shape[1])))
+    try:
+        Li = np.linalg.inv(np.linalg.cholesky(K + shift[:, :, None] * np.eye(K.shape[1])))
+    except np.linalg.LinAlgError:
+        raise ValueError("the energy's Hessian is not positive semidefinite on a cell") from None
     M = Li @ B @ np.swapaxes(Li, 1, 2)
     mu = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, 1, 2)))[:, -1]
+    trace = np.trace(B, axis1=1, axis2=2)
+    mu = np.where(KERNEL_SHIFT * mu > SHIFT_SHARE * trace, np.inf, mu)
     return np.where(mu > NEGLIGIBLE, mu, 0.0)
 
 

@@ -187,3 +187,18 @@ def test_cells_in_chunks_give_the_same_limits(monkeypatch):
     problem = case.problem(1, 3, case.parameters())
     monkeypatch.setattr(nitsche.stability, "BATCH_ENTRIES", 3000)  # about 3 cells per chunk
     assert problem.local_limits()["support"] == pytest.approx(problem.limits["support"], rel=1e-12)
+
+
+def test_a_multiplier_the_cell_energy_does_not_bound_has_no_limit():
+    """A multiplier of a field without energy (v): B_C does not vanish on the kernel of K_C.
+    'auto' is an error; a given number warns (limit 0)."""
+    mesh = MeshTri.init_symmetric().refined(1)
+    u, v = ni.Field("u", mesh, ElementTriP2()), ni.Field("v", mesh, ElementTriP2())
+    energy = lambda u, v: 0.5 * dot(grad(u), grad(u)) + 0.0 * v
+    c = ni.Inequality(gap=lambda u: u + 1.0, multiplier=lambda v, n: dot(grad(v), n),
+                      scaling=ni.Scaling("auto", 1), on=ni.facets(u), name="contact")
+    with pytest.raises(ValueError, match="does not bound the multiplier"):
+        ni.Problem([u, v], energy, [c])
+    c.scaling = ni.Scaling(0.01, 1)
+    with pytest.warns(ni.StabilityWarning, match="exceeds the stability limit 0 "):
+        ni.Problem([u, v], energy, [c])
