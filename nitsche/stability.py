@@ -59,7 +59,7 @@ def local_limits(G, B_dofs, owners, free, cell_hessians):
 def _cell_limits(G, B_dofs, owner, cells, free, cell_hessians):
     """local_limits for the elements of the given cells (owner: index into cells)."""
     rank = _rank_within(owner, cells.size)  # the element's slot among those of its cell
-    m, slots = B_dofs.shape[1], int(rank.max()) + 1
+    (_, q, m), slots = G.shape, int(rank.max()) + 1
     columns = rank[:, None] * m + np.arange(m)
     side_by_side = np.full((cells.size, slots * m), -1, dtype=np.int64)
     side_by_side[owner[:, None], columns] = B_dofs
@@ -68,33 +68,35 @@ def _cell_limits(G, B_dofs, owner, cells, free, cell_hessians):
     n = local.shape[1]
     K = sum(_scatter(Ke, np.arange(cells.size), pos, n, cells.size)
             for (Ke, _), pos in zip(K_parts, positions))
-    B = np.einsum("eqk,eql->ekl", G, G)
-    Bc = _scatter(B, owner, positions[-1][owner[:, None], columns], n, cells.size)
-    mu = largest_local_eigenvalues(Bc, K, (local >= 0) & free[np.maximum(local, 0)])
+    rows = owner[:, None] * (slots * q) + rank[:, None] * q + np.arange(q)  # B_C = Gc^T Gc:
+    index = rows[:, :, None] * n + positions[-1][owner[:, None], columns][:, None, :]  # its rows
+    Gc = np.bincount(index.ravel(), weights=G.ravel(),
+                     minlength=cells.size * slots * q * n).reshape(cells.size, slots * q, n)
+    mu = largest_local_eigenvalues(Gc, K, (local >= 0) & free[np.maximum(local, 0)])
     with np.errstate(divide="ignore"):
         return np.where(mu > 0, 1.0 / mu, np.inf)
 
 
-def largest_local_eigenvalues(B, K, mask):
-    """max v^T B v / v^T K v of each (B, K) in a batch over the components in mask (the others
-    are zero), on the complement of the kernel of K where B vanishes: with S = diag(K)^-1/2
-    (the dofs' scales may differ by powers of h, e.g. Hermite dofs), the largest eigenvalue of
-    L^-1 S B S L^-T,  L L^T = S K S + 1e-10 I.  inf where that value comes from the shift
-    (1e-10 mu > 1e-2 trace(S B S)): B does not vanish on the kernel of K."""
-    both = mask[:, :, None] & mask[:, None, :]
+def largest_local_eigenvalues(G, K, mask):
+    """max v^T B v / v^T K v, B = G^T G, of each (G, K) in a batch over the components in mask
+    (the others are zero), on the complement of the kernel of K where B vanishes: with
+    S = diag(K)^-1/2 (the dofs' scales may differ by powers of h, e.g. Hermite dofs) and
+    L L^T = S K S + 1e-10 I, the largest eigenvalue of H^T H = L^-1 S B S L^-T, H = G S L^-T
+    (or of H H^T when G has fewer rows than columns).  inf where that value comes from the
+    shift (1e-10 mu > 1e-2 trace(S B S)): B does not vanish on the kernel of K."""
     diagonal = np.diagonal(K, axis1=1, axis2=2)
     s = np.where(mask, 1 / np.sqrt(np.where(diagonal > 0, diagonal, 1.0)), 0.0)
-    S = s[:, :, None] * s[:, None, :]
-    K, B = np.where(both, K * S, 0.0), np.where(both, B * S, 0.0)
+    K = K * (s[:, :, None] * s[:, None, :])
     shift = np.where(mask, KERNEL_SHIFT, 1.0)  # left-out components: K = 1, B = 0
     try:
         Li = np.linalg.inv(np.linalg.cholesky(K + shift[:, :, None] * np.eye(K.shape[1])))
     except np.linalg.LinAlgError:
         raise ValueError("the energy's Hessian is not positive semidefinite on a cell") from None
-    M = Li @ B @ np.swapaxes(Li, 1, 2)
-    mu = np.linalg.eigvalsh(0.5 * (M + np.swapaxes(M, 1, 2)))[:, -1]
-    trace = np.trace(B, axis1=1, axis2=2)
-    mu = np.where(KERNEL_SHIFT * mu > SHIFT_SHARE * trace, np.inf, mu)
+    Gs = G * s[:, None, :]
+    H = Gs @ np.swapaxes(Li, 1, 2)
+    Ht = np.swapaxes(H, 1, 2)
+    mu = np.linalg.eigvalsh(H @ Ht if H.shape[1] < H.shape[2] else Ht @ H)[:, -1]
+    mu = np.where(KERNEL_SHIFT * mu > SHIFT_SHARE * np.sum(Gs ** 2, axis=(1, 2)), np.inf, mu)
     return np.where(mu > NEGLIGIBLE, mu, 0.0)
 
 
