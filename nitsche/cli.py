@@ -33,6 +33,9 @@ def parser():
     run.add_argument("--verbose", action="store_true", help="print every Newton iteration")
     run.add_argument("--no-nested", dest="nested", action="store_false",
                      help="start Newton from zero instead of solving the coarser levels first")
+    run.add_argument("--global-check", action="store_true",
+                     help="diagnostic: also solve the global eigenproblems of alpha0 (sparse LU; "
+                          "result.json: alpha0_global_limits, alpha0_stability_ratio)")
     st = sub.add_parser("study", help="uniform refinement study with nested iteration", add_help=False)
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")
@@ -126,6 +129,9 @@ def _run(case, args, p, out, options):
                 solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p),
                 alpha0_limits=problem.alpha0_limits,
                 constraints=result.constraints, errors=errors)
+    if args.global_check:  # J_h is convex if the ratio is at most 1
+        data.update(alpha0_global_limits=problem.global_limits(),
+                    alpha0_stability_ratio=problem.stability_ratio())
     extra = getattr(case.module, "report", None)
     if extra:
         data.update(extra(problem, result, p))

@@ -173,10 +173,13 @@ def test_limits_do_not_depend_on_the_level():
     assert fine.max() == pytest.approx(coarse.max(), rel=1e-6)
 
 
-def test_fraction_of_the_limit_on_the_command_line(tmp_path):
+def test_fraction_of_the_limit_and_the_global_check_on_the_command_line(tmp_path):
     assert main(["run", "dirichlet", "--level", "1", "--degree", "2", "--out", str(tmp_path),
-                 "--set", "alpha0=0.3*limit"]) == 0
-    c = json.loads((tmp_path / "result.json").read_text())["constraints"]["dirichlet"]
+                 "--set", "alpha0=0.3*limit", "--global-check"]) == 0
+    data = json.loads((tmp_path / "result.json").read_text())
+    assert data["alpha0_limits"]["dirichlet"] <= data["alpha0_global_limits"]["dirichlet"]
+    assert 0 < data["alpha0_stability_ratio"] < 0.3 + 1e-6  # 0.3 of every local limit
+    c = data["constraints"]["dirichlet"]
     assert c["alpha0_min"] == pytest.approx(0.3 * c["alpha0_limit_min"])
     assert c["alpha0_max"] == pytest.approx(0.3 * c["alpha0_limit_max"])
 
