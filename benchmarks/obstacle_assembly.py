@@ -55,12 +55,11 @@ def main():
     case = get(args.case)
     p = case.parameters({"compare": "false"} if args.case == "two-membrane" else {})
     c0 = nitsche.assembly.compile_seconds[0]
-    limits = case.alpha0_limits(args.degree, p)
 
     # the nested chain: levels 0 .. level, each starting from the previous solution
     chain, solved, its = [], [], []
     for level in range(args.level + 1):
-        t_setup, problem = timed(lambda: case.problem(level, args.degree, p, limits))
+        t_setup, problem = timed(lambda: case.problem(level, args.degree, p))
         x0 = prolongate(*solved[-1], problem) if solved else None
         t_solve, res = timed(lambda: problem.minimize(x0))
         res.check()
@@ -76,7 +75,7 @@ def main():
     rows = {"ours_hessian_step": [], "ours_hessian_first": [], "skfem_laplace": [],
             "ours_solve_fine": [], "linear_assemble_solve": []}
     for _ in range(args.repeat):
-        fresh = case.problem(args.level, args.degree, p, limits)
+        fresh = case.problem(args.level, args.degree, p)
         rows["ours_hessian_first"].append(timed(lambda: fresh.newton_system(x_fine))[0])
         rows["ours_hessian_step"].append(timed(lambda: fresh.newton_system(x_fine))[0])
         rows["skfem_laplace"].append(timed(lambda: [asm(laplace, basis) for _ in range(nfields)])[0])

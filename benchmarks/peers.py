@@ -178,15 +178,11 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
     if problem == "membrane-solid":  # 3D scaling: the case itself, n = 7 * 2^level
         case = get(problem)
         p = case.parameters({"alpha0": str(alpha0), "n0": str(N0_3D)})
-        limits = case.alpha0_limits(1, p)
-        make = [lambda k=k: case.problem(k, 1, p, limits) for k in range(level + 1)]
+        make = [lambda k=k: case.problem(k, 1, p) for k in range(level + 1)]
     elif mesh_spec is None:
         case = get(problem)
         p = case.parameters({"alpha0": str(alpha0)} | ({"compare": "false"} if problem != "obstacle" else {}))
-        t0 = time.perf_counter()
-        limits = case.alpha0_limits(1, p)
-        t["setup"] += time.perf_counter() - t0
-        make = [lambda k=k: case.problem(k, 1, p, limits) for k in range(level + 1)]
+        make = [lambda k=k: case.problem(k, 1, p) for k in range(level + 1)]  # alpha0 checked per level
     else:
         make = [lambda n=n: build_ours(problem, tensor_mesh(problem, n), alpha0) for n in mesh_spec]
     prev, its, levels = None, [], []

@@ -92,7 +92,7 @@ def main(level=0, E=1.0, nu=0.3, R=1.0, d=0.01, size=320.0, n_fine=6, growth=1.2
     a_active = r[lam_N > 0].max()
     R_bottom = reactions(problem, result.x)["u"]["bottom"][1]
     return dict(unknowns=int(problem.free.size), cells=int(mesh.t.shape[1]),
-                alpha0=problem.constraints[0].scaling.alpha0, newton_iterations=result.iterations,
+                alpha0=float(problem.alpha0[problem.constraints[0].name].min()), newton_iterations=result.iterations,
                 force=F, force_hertz=F_hertz, force_error=F / F_hertz - 1,
                 radius_moment=float(a_moment), radius_active=float(a_active), radius_hertz=a,
                 radius_error=float(a_moment / a - 1),

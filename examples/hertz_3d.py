@@ -90,7 +90,7 @@ def main(E=1.0, nu=0.3, R=1.0, d=0.01, size=40.0, n_fine=6, growth=1.5, alpha0="
     a_area = np.sqrt(4 * c["contact_measure"] / np.pi)   # quarter contact area -> radius
     R_bottom = 4 * reactions(problem, result.x)["u"]["bottom"][2]
     return dict(unknowns=int(problem.free.size), cells=int(mesh.t.shape[1]),
-                alpha0=problem.constraints[0].scaling.alpha0, newton_iterations=result.iterations,
+                alpha0=float(problem.alpha0[problem.constraints[0].name].min()), newton_iterations=result.iterations,
                 force=F, force_hertz=F_hertz, force_error=F / F_hertz - 1,
                 radius_moment=float(a_moment), radius_area=float(a_area), radius_hertz=a,
                 radius_error=float(a_moment / a - 1), radius_area_error=float(a_area / a - 1),

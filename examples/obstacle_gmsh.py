@@ -85,7 +85,7 @@ def main(levels=3, T=1.0, f=-6.0, depth=0.2, h0=0.2, outdir=None, alpha0="auto")
                    reaction_reentrant=R["reentrant"][0],
                    balance_error=abs(R["all"][0] + c["total_multiplier"] + f * area) / abs(f * area),
                    max_violation=result.max_violation, min_u=float(result["u"].min()),
-                   alpha0=problem.constraints[0].scaling.alpha0)
+                   alpha0=float(problem.alpha0[problem.constraints[0].name].min()))
         if prev is not None:
             row["difference"] = energy_norm(problem, result.x - ni.prolongate(*prev, problem))
         rows.append(row)

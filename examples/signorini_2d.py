@@ -71,7 +71,7 @@ def main(level=3, degree=1, E=1.0, nu=0.3, W=2.0, B=1.0, R=4.0, delta=0.01, alph
     half_width = 2 * np.sqrt((W_ * lam_N * x ** 2).sum() / force)
     P = 2 * force                                       # both halves
     a_hertz = np.sqrt(4 * P * R / (np.pi * E / (1 - nu ** 2)))
-    return dict(unknowns=int(problem.free.size), alpha0=problem.constraints[0].scaling.alpha0,
+    return dict(unknowns=int(problem.free.size), alpha0=float(problem.alpha0[problem.constraints[0].name].min()),
                 newton_iterations=result.iterations,
                 contact_force=force, plate_force=plate, balance_error=abs(plate + force) / force,
                 # the rollers hold u_x only; frictionless contact and plate: no net horizontal force

@@ -23,7 +23,7 @@ import scipy.sparse as sp
 
 from jax.extend.core import Literal
 
-from .functional import RESERVED
+from .functional import ALPHA0, RESERVED
 from .jets import Jet
 
 CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small terms, the rest
@@ -155,6 +155,8 @@ class Term:
         self.n = np.ascontiguousarray(np.moveaxis(n, 0, -1)) if self.has_normal \
             else np.broadcast_to(np.zeros((1, self.nq, self.dim)), (self.nel, self.nq, self.dim))
         self.h = np.asarray(measure.h, dtype=float)
+        self.cells = measure.cells  # the cell of measure.mesh that owns each element
+        self.alpha0 = np.ones(self.nel)  # per-element data of constraint terms (see functional.ALPHA0)
         self._kernels = {}
 
     def _record(self, fs):
@@ -162,8 +164,8 @@ class Term:
         used = {f.name: set() for f in fs}
         shapes = {f.name: dict(zip(f.orders, self.measure.shapes(f, f.orders))) for f in fs}
 
-        def trace(zs, x, n, h):
-            args = {"x": x, "n": n, "h": h}
+        def trace(zs, x, n, h, a):
+            args = {"x": x, "n": n, "h": h, ALPHA0: a}
             for f in fs:
                 args[f.name] = Jet(f.name, zs[f.name], f.orders, used[f.name])
             return self.pointwise(args)
@@ -171,7 +173,8 @@ class Term:
         zs = {f.name: {o: jax.ShapeDtypeStruct(s, jnp.float64) for o, s in shapes[f.name].items()}
               for f in fs}
         vec = jax.ShapeDtypeStruct((self.dim,), jnp.float64)
-        out = jax.eval_shape(trace, zs, vec, vec, jax.ShapeDtypeStruct((), jnp.float64))
+        scalar = jax.ShapeDtypeStruct((), jnp.float64)
+        out = jax.eval_shape(trace, zs, vec, vec, scalar, scalar)
         if hasattr(out, "shape") and out.shape != ():
             raise ValueError(f"{self.label} must return a scalar at each point, not shape {out.shape}")
         layout = []
@@ -202,22 +205,23 @@ class Term:
         return tuple(T.shape[0] == 1 for T in self.T)
 
     def _point_fn(self, by_field=False):
-        """The density w(z, x, n, h) of the kept jet components z of all fields (one vector),
-        or, by_field, w(z_1, ..., z_k, x, n, h) of one vector per field."""
+        """The density w(z, x, n, h, a) of the kept jet components z of all fields (one vector),
+        or, by_field, w(z_1, ..., z_k, x, n, h, a) of one vector per field (a: the element's
+        alpha0)."""
         layout, pointwise, kept = self.layout, self.pointwise, self.kept
         offsets = np.cumsum([0] + [m for m, _ in self.sizes])
 
         def of_fields(*a):
-            zs, (x, n, h) = a[:len(layout)], a[len(layout):]
-            args = {"x": x, "n": n, "h": h}
+            zs, (x, n, h, alpha0) = a[:len(layout)], a[len(layout):]
+            args = {"x": x, "n": n, "h": h, ALPHA0: alpha0}
             for (name, parts, provided), z, kf in zip(layout, zs, kept):
                 full = jnp.zeros(sum(p[3] for p in parts)).at[np.array(kf)].set(z)
                 args[name] = Jet(name, {o: full[s: s + size].reshape(shape)
                                         for o, shape, s, size in parts}, provided)
             return pointwise(args)
 
-        def f(z, x, n, h):
-            return of_fields(*[z[a:b] for a, b in zip(offsets[:-1], offsets[1:])], x, n, h)
+        def f(z, x, n, h, a):
+            return of_fields(*[z[i:j] for i, j in zip(offsets[:-1], offsets[1:])], x, n, h, a)
         return of_fields if by_field else f
 
     @property
@@ -229,7 +233,7 @@ class Term:
             if key not in _COMPILED:
                 m = sum(mf for mf, _ in self.sizes)
                 vec = jnp.zeros(self.dim)
-                jaxpr = jax.make_jaxpr(jax.hessian(self._point_fn()))(jnp.zeros(m), vec, vec, 0.1)
+                jaxpr = jax.make_jaxpr(jax.hessian(self._point_fn()))(jnp.zeros(m), vec, vec, 0.1, 1.0)
                 _COMPILED[key] = not _depends_on_first_input(jaxpr.jaxpr)
             self._quadratic = _COMPILED[key]
         return self._quadratic
@@ -244,7 +248,7 @@ class Term:
             if key not in _COMPILED:
                 sizes = [mf for mf, _ in self.sizes]
                 nf = len(sizes)
-                args = [jnp.zeros(mf) for mf in sizes] + [jnp.zeros(self.dim), jnp.zeros(self.dim), 0.1]
+                args = [jnp.zeros(mf) for mf in sizes] + [jnp.zeros(self.dim), jnp.zeros(self.dim), 0.1, 1.0]
                 coupled = []
                 for i in range(nf):
                     jaxpr = jax.make_jaxpr(jax.grad(self._point_fn(by_field=True), argnums=i))(*args).jaxpr
@@ -259,12 +263,12 @@ class Term:
         computed once; the tabulations are released afterwards (they are not needed again)."""
         if not hasattr(self, "_parts"):
             self._parts = self.run("full", np.zeros(1 + max(int(d.max()) for d in self.field_dofs)))
-            self.T = self.W = self.x = self.n = self.h = None
+            self.T = self.W = self.x = self.n = self.h = self.alpha0 = None
         return self._parts
 
     def kernel(self, kind):
         """The compiled chunk kernel: 'energy', 'gradient' (energy, gradient), 'full'
-        (energy, gradient, Hessian) or 'values'."""
+        (energy, gradient, Hessian), 'jacobian' (per point) or 'values'."""
         if kind in self._kernels:
             return self._kernels[kind]
         key = (kind, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
@@ -277,24 +281,25 @@ class Term:
                     for T, shared in zip(self.T, self.shared)]
             args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
             args += [jax.ShapeDtypeStruct((self.chunk,) + a.shape[1:], jnp.float64)
-                     for a in (self.W, self.x, self.n, self.h)]
+                     for a in (self.W, self.x, self.n, self.h, self.alpha0)]
             t = time.perf_counter()
             _COMPILED[key] = jax.jit(fn).lower(*args).compile()
             compile_seconds[0] += time.perf_counter() - t
         self._kernels[kind] = _COMPILED[key]
         return self._kernels[kind]
 
-    def run(self, kind, x):
-        """Apply a kernel to all elements for the global dof vector x."""
+    def run(self, kind, x, elements=None):
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x."""
         kern = self.kernel(kind)
         us = [x[d] for d in self.field_dofs]
+        nel = self.nel if elements is None else len(elements)
         outs = []
-        for s in range(0, self.nel, self.chunk):
-            sl = slice(s, s + self.chunk)
+        for s in range(0, nel, self.chunk):
+            sl = slice(s, s + self.chunk) if elements is None else elements[s: s + self.chunk]
             Ts = [T if shared else _pad(T[sl], self.chunk) for T, shared in zip(self.T, self.shared)]
-            rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h)]
+            rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
             outs.append(kern(*Ts, *rest))
-        return [np.concatenate([np.asarray(o[i]) for o in outs])[:self.nel] for i in range(len(outs[0]))]
+        return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
@@ -328,8 +333,9 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
     def jets(Ts, us):
         return jnp.concatenate([jnp.einsum("eqck,ek->eqc", T, u) for T, u in zip(Ts, us)], axis=-1)
 
-    def points(W, x, n, h):
-        return (x.reshape(chunk * nq, -1), n.reshape(chunk * nq, -1), jnp.repeat(h, nq))
+    def points(W, x, n, h, a):
+        return (x.reshape(chunk * nq, -1), n.reshape(chunk * nq, -1), jnp.repeat(h, nq),
+                jnp.repeat(a, nq))
 
     def contract_gradient(Ts, Wdw):
         """grad_e = sum_q W T^T dw/dz, field by field."""
@@ -349,22 +355,22 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
                                 for i in range(nf)], axis=1)
 
     def energy(*a):
-        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        w = jax.vmap(point_fn)(z, *points(W, x, n, h)).reshape(chunk, nq)
+        w = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0)).reshape(chunk, nq)
         return (jnp.sum(W * w, axis=1),)
 
     def gradient(*a):
-        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *points(W, x, n, h))
+        w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *points(W, x, n, h, alpha0))
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
         return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw)
 
     def full(*a):
-        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        px = points(W, x, n, h)
+        px = points(W, x, n, h, alpha0)
         w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *px)
         d2w = jax.vmap(jax.hessian(point_fn))(z, *px)
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
@@ -372,13 +378,23 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
         return (jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw),
                 contract_hessian(Ts, Wd2w))
 
-    def values(*a):
-        Ts, us, (W, x, n, h) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+    def jacobian(*a):
+        """sqrt(W) dw/dz T at every point (w: e.g. a multiplier), shape (chunk, nq, dofs)."""
+        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        out = jax.vmap(point_fn)(z, *points(W, x, n, h))
+        dw = jax.vmap(jax.grad(point_fn))(z, *points(W, x, n, h, alpha0))
+        rdw = jnp.sqrt(W)[..., None] * dw.reshape(chunk, nq, m)
+        return (jnp.concatenate([jnp.einsum("eqc,eqck->eqk", rdw[..., i:j], T)
+                                 for T, i, j in zip(Ts, offsets[:-1], offsets[1:])], axis=2),)
+
+    def values(*a):
+        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        z = jets(Ts, us).reshape(chunk * nq, m)
+        out = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0))
         return tuple(o.reshape(chunk, nq) for o in out)
 
-    return {"energy": energy, "gradient": gradient, "full": full, "values": values}[kind]
+    return {"energy": energy, "gradient": gradient, "full": full, "jacobian": jacobian,
+            "values": values}[kind]
 
 
 class Assembler:

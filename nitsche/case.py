@@ -132,7 +132,8 @@ class Case:
             values[k] = _parse(k, v, values[k])
         for k, allowed in getattr(self.module, "RANGES", {}).items():
             v = values[k]
-            if not (v == "auto" and self.defaults[k][0] == "auto") and v not in allowed:
+            given_as_text = isinstance(v, str) and self.defaults[k][0] == "auto"  # 'auto', 'F*limit'
+            if not given_as_text and v not in allowed:
                 auto = " or 'auto'" if self.defaults[k][0] == "auto" else ""
                 raise ParameterError(f"parameter {k}={v!r} ({self.defaults[k][1]}) must be "
                                      f"{allowed}{auto}; set --set {k}=... within that range")
@@ -185,11 +186,12 @@ class Case:
         return problem
 
     def alpha0_limits(self, degree, p, level=1):
-        """Stability limits of alpha0 computed on a coarse level of this case (remembered
-        per degree and parameter values)."""
+        """Diagnostic: the global stability limits of alpha0 (one value per constraint,
+        Problem.stability_limits) on a coarse level of this case (remembered per degree and
+        parameter values).  Each Problem computes its own element-local limits."""
         key = (degree, level, tuple(sorted((k, repr(v)) for k, v in vars(p).items())))
         if key not in self._limits:
-            self._limits[key] = self.problem(level, degree, p).alpha0_limits
+            self._limits[key] = self.problem(level, degree, p).stability_limits()
         return dict(self._limits[key])
 
     def errors(self, problem, result, p):
@@ -221,8 +223,8 @@ def _parse(name, text, default):
         if isinstance(default, int):
             return int(text)
         if isinstance(default, float) or default == "auto":
-            if text == "auto" and default == "auto":
-                return text
+            if default == "auto" and (text == "auto" or text.endswith("*limit")):
+                return text  # checked by nitsche.Scaling
             value = float(text)
             if not math.isfinite(value):
                 raise ValueError

@@ -56,6 +56,9 @@ def parser():
     run.add_argument("--verbose", action="store_true", help="print every Newton iteration")
     run.add_argument("--no-nested", dest="nested", action="store_false",
                      help="start Newton from zero instead of solving the coarser levels first")
+    run.add_argument("--global-check", action="store_true",
+                     help="diagnostic: also solve the global eigenproblems of alpha0 (sparse LU; "
+                          "result.json: alpha0_global_limits, alpha0_stability_ratio)")
     st = sub.add_parser("study", help="uniform refinement study with nested iteration", add_help=False)
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")
@@ -176,7 +179,8 @@ def execute(case, args, p, out, options):
         with folder:
             if args.command == "run":
                 rc = commands.run(case, args.level, args.degree, p, folder, options,
-                                  nested=args.nested, verbose=args.verbose)
+                                  nested=args.nested, verbose=args.verbose,
+                                  global_check=args.global_check)
             else:
                 rc = commands.study(case, args.levels, args.degree, p, folder, options,
                                     start=args.start)

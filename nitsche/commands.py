@@ -16,19 +16,19 @@ from .reactions import reactions
 from .study import StudyFailed, run_study, solve_nested, table
 
 
-def run(case, level, degree, p, out, options, nested=True, verbose=False):
-    """Solve `case` at `level` (nested: levels 0..level, each from the previous one)."""
+def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False):
+    """Solve `case` at `level` (nested: levels 0..level, each from the previous one);
+    global_check: also the global alpha0 limits and the stability ratio (J_h convex if <= 1)."""
     t0 = time.perf_counter()
     options = dict(options)
-    limits = case.alpha0_limits(degree, p)
     if verbose:
         options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
                                                        f"J_h {E:.12g}", file=sys.stderr)
     if nested:
-        problem, result, its, failure = solve_nested(case, level, degree, p, limits, options,
+        problem, result, its, failure = solve_nested(case, level, degree, p, options,
                                                      progress=True)
     else:
-        problem = case.problem(level, degree, p, limits)
+        problem = case.problem(level, degree, p)
         result = problem.minimize(**options)
         its, failure = [result.iterations], None
         if not result.converged:
@@ -55,10 +55,13 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False):
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
                 feasible=result.feasible, seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
                 solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p),
-                alpha0_limits=limits, constraints=result.constraints, errors=errors,
+                alpha0_limits=problem.alpha0_limits, constraints=result.constraints, errors=errors,
                 reactions=reactions(problem, result.x))
     if failure and reached < level:
         data["reason"] = f"level {failure['level']}: {failure['reason']}"
+    if global_check:  # J_h is convex if the ratio is at most 1
+        data.update(alpha0_global_limits=problem.stability_limits(),
+                    alpha0_stability_ratio=problem.stability_ratio())
     extra = getattr(case.module, "report", None)
     if extra:
         data.update(extra(problem, result, p))

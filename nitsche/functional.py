@@ -1,7 +1,8 @@
 """The ingredients of a constrained problem and the Nitsche functional built from them.
 
 For a constraint g(u) >= 0 (or = 0) on a measure S with multiplier lambda(u)
-and scaling alpha = alpha0 h^k / stiffness, the engine adds to the energy
+and scaling alpha = alpha0 h^k / stiffness (alpha0 one value per element, passed to
+the compiled kernels as data like h), the engine adds to the energy
 
     int_S  -1/2 alpha lambda^2 + 1/2 alpha P(lambda - g / alpha)^2,
 
@@ -9,11 +10,11 @@ P = [.]_+ for an inequality and the identity for an equality; a penalty
 constraint has lambda = 0, i.e. int_S P(-g)^2 / (2 alpha).  The discrete
 multiplier (contact force) is lambda_N = P(lambda - g / alpha).
 """
-import copy
 import inspect
 import math
 
 import jax.numpy as jnp
+import numpy as np
 
 from .ops import plus
 
@@ -48,15 +49,33 @@ def _number(value, name, meaning, valid, expected):
     return int(number) if number.is_integer() else number
 
 
+AUTO_FRACTION = 0.5  # alpha0='auto' takes this fraction of each element's stability limit ...
+AUTO_CAP = 0.1       # ... and at most this (the value where the multiplier term is stable for all alpha0)
+ALPHA0 = "alpha0 of the element"  # the key under which a density receives alpha0: data, like h
+
+
 class Scaling:
-    """alpha = alpha0 * h^h_power / stiffness, constant on each cell (h: cell diameter)."""
+    """alpha = alpha0 h^k / stiffness on each element (h: cell diameter, k = h_power), with
+
+        alpha0 = a positive number      the same on every element,
+                 'auto'                 min(1/2 limit_T, 0.1),
+                 'F*limit' ('0.3*limit') F limit_T (0.1 where limit_T is infinite),
+                 a function alpha0(x, h) of the elements' centroids x (dim, elements) and
+                                         cell diameters h (elements,),
+
+    limit_T the element's stability limit (nitsche.stability).  The Scaling keeps what the
+    user gave; each Problem resolves it to one alpha0 per element."""
 
     def __init__(self, alpha0, h_power, stiffness=1.0):
-        if not (isinstance(alpha0, str) and alpha0 == "auto"):
+        if isinstance(alpha0, str) and alpha0.strip() == "auto":
+            alpha0 = "auto"
+        self.fraction = _fraction(alpha0)
+        if self.fraction is None and not callable(alpha0):
             try:
                 alpha0 = float(alpha0)
             except (TypeError, ValueError):
-                raise ValueError(f"alpha0 must be a positive number or 'auto', not {alpha0!r}")
+                raise ValueError(f"alpha0 must be a positive number, 'auto', 'F*limit' or a function "
+                                 f"alpha0(x, h), not {alpha0!r}")
             if not alpha0 > 0 or alpha0 == float("inf"):
                 raise ValueError(f"alpha0 must be a positive finite number (got {alpha0}); "
                                  "use alpha0='auto' for a safe fraction of the stability limit")
@@ -66,25 +85,44 @@ class Scaling:
         self.stiffness = float(_number(stiffness, "stiffness", "the stiffness in alpha = alpha0 "
                                        "h^k / stiffness", lambda s: s > 0, "a positive finite number"))
 
-    def resolved(self, alpha0):
-        """A copy with alpha0 given (the resolution of alpha0='auto' by one Problem)."""
-        return Scaling(alpha0, self.h_power, self.stiffness)
-
     @property
-    def is_auto(self):
-        return isinstance(self.alpha0, str)
+    def needs_limit(self):
+        """alpha0 is a fraction of the stability limit ('auto' or 'F*limit')."""
+        return self.fraction is not None
 
-    def relative(self, h):
-        """alpha / alpha0 = h^k / stiffness."""
-        return h ** self.h_power / self.stiffness
-
-    def __call__(self, h):
-        if self.is_auto:
-            raise RuntimeError("alpha0='auto' must be resolved (Problem does this) before use")
-        return self.alpha0 * self.relative(h)
+    def per_element(self, limit, x, h):
+        """alpha0 on each element from its stability limit, centroid x (dim, elements) and
+        cell diameter h."""
+        if self.alpha0 == "auto":
+            return np.minimum(AUTO_FRACTION * limit, AUTO_CAP)
+        if self.needs_limit:
+            return np.where(np.isfinite(limit), self.fraction * limit, AUTO_CAP)
+        if callable(self.alpha0):
+            a = np.broadcast_to(np.asarray(self.alpha0(x, h), dtype=float), h.shape).copy()
+            if not np.all(np.isfinite(a) & (a > 0)):
+                raise ValueError("the function alpha0(x, h) must return positive finite values")
+            return a
+        return np.full(h.shape, self.alpha0)
 
     def __repr__(self):
-        return f"Scaling(alpha0={self.alpha0}, h_power={self.h_power}, stiffness={self.stiffness})"
+        return f"Scaling(alpha0={self.alpha0!r}, h_power={self.h_power}, stiffness={self.stiffness})"
+
+
+def _fraction(alpha0):
+    """F of 'F*limit' (1/2 for 'auto'); None for other values."""
+    if not isinstance(alpha0, str):
+        return None
+    if alpha0 == "auto":
+        return AUTO_FRACTION
+    head, star, tail = alpha0.partition("*")
+    try:
+        fraction = float(head) if star and tail.strip() == "limit" else None
+    except ValueError:
+        fraction = None
+    if fraction is None or not 0 < fraction < float("inf"):
+        raise ValueError(f"alpha0 must be a positive number, 'auto', 'F*limit' with F > 0 "
+                         f"(e.g. '0.3*limit') or a function alpha0(x, h), not {alpha0!r}")
+    return fraction
 
 
 class Integral:
@@ -114,12 +152,6 @@ class Constraint:
             if multiplier is not None else ()
         self.names = tuple(dict.fromkeys(self.gap_names + self.multiplier_names))
 
-    def with_scaling(self, scaling):
-        """The same constraint with another scaling (e.g. alpha0='auto' resolved)."""
-        other = copy.copy(self)
-        other.scaling = scaling
-        return other
-
     @property
     def kind(self):
         if self.multiplier is None:
@@ -129,10 +161,10 @@ class Constraint:
     def _parts(self):
         gap, multiplier, scaling = self.gap, self.multiplier, self.scaling
         gn, mn = self.gap_names, self.multiplier_names
-        alpha0, k, stiffness = scaling.alpha0, scaling.h_power, scaling.stiffness
+        k, stiffness = scaling.h_power, scaling.stiffness
 
         def parts(args):
-            alpha = alpha0 * args["h"] ** k / stiffness
+            alpha = args[ALPHA0] * args["h"] ** k / stiffness
             g = call(gap, gn, args)
             lam = call(multiplier, mn, args) if multiplier is not None else jnp.zeros_like(g)
             return g, lam, alpha
@@ -151,14 +183,14 @@ class Constraint:
         """(g, lambda, alpha) at a point: for reports, contact pressure and active sets."""
         return self._parts()
 
-    def multiplier_square(self):
-        """1/2 (alpha/alpha0) lambda^2: its Hessian is the B of the stability eigenproblem."""
+    def scaled_multiplier(self):
+        """sqrt(alpha) lambda with the element's alpha0 (1: sqrt(alpha/alpha0) lambda, whose
+        Gram matrix sum_q W D(.)^T D(.) is the B of the stability eigenproblems)."""
         multiplier, scaling, mn = self.multiplier, self.scaling, self.multiplier_names
         k, stiffness = scaling.h_power, scaling.stiffness
 
         def density(args):
-            lam = call(multiplier, mn, args)
-            return 0.5 * args["h"] ** k / stiffness * lam ** 2
+            return jnp.sqrt(args[ALPHA0] * args["h"] ** k / stiffness) * call(multiplier, mn, args)
         return density
 
 

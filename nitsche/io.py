@@ -8,7 +8,7 @@ from skfem.io.meshio import to_meshio
 import numpy as np
 from skfem import Basis, ElementVector
 
-from .locate import probes
+from .locate import locate, probes
 from .quantities import vertex_average
 
 
@@ -62,6 +62,18 @@ def vertex_multiplier(problem, values, mesh):
     return out
 
 
+def cell_alpha0(problem, mesh):
+    """alpha0 of every constraint with a multiplier on `mesh` as cell data ('<name>_alpha0':
+    the smallest over the cell's constraint elements, NaN on cells without one)."""
+    out = {}
+    for c, t in zip(problem.constraints, problem.constraint_terms):
+        if c.on.mesh is mesh and c.multiplier is not None:
+            a = np.full(mesh.nelements, np.inf)
+            np.minimum.at(a, t.cells, problem.alpha0[c.name])
+            out[f"{c.name}_alpha0"] = [np.where(np.isfinite(a), a, np.nan)]
+    return out
+
+
 def point_values(field, u, mesh):
     """The field's values at the vertices of `mesh` (its own mesh, or a refinement of it):
     (n,) or (n, components).  Vertex dofs where they are the values (P1, Q1), else the
@@ -85,7 +97,7 @@ def output_mesh(mesh, fields):
 def write_vtu(path_prefix, problem, x, vertex_data=None):
     """One .vtu per mesh: point data named after the fields (every element kind), the
     contact pressure of the constraints on that mesh, and vertex_data {name: (mesh,
-    values at its vertices)} (e.g. declared quantities)."""
+    values at its vertices)} (e.g. declared quantities); cell data alpha0 per constraint."""
     parts = problem.split(x)
     values = problem.constraint_values(x)
     meshes = []
@@ -104,7 +116,11 @@ def write_vtu(path_prefix, problem, x, vertex_data=None):
             at_vertices = {k: P @ v for k, v in at_vertices.items()}
         data.update(at_vertices)
         path = f"{path_prefix}.vtu" if len(meshes) == 1 else f"{path_prefix}_{i}.vtu"
-        out = to_meshio(out_mesh, point_data=data)
+        cells = cell_alpha0(problem, mesh)
+        if out_mesh is not mesh and cells:  # each cell of the refined mesh takes its parent's
+            parent = locate(Basis(mesh, mesh.elem()), out_mesh.p[:, out_mesh.t].mean(axis=1))
+            cells = {k: [v[0][parent]] for k, v in cells.items()}
+        out = to_meshio(out_mesh, point_data=data, cell_data=cells)
         if out.points.shape[1] == 2:  # VTK points are 3D
             out.points = np.c_[out.points, np.zeros(len(out.points))]
         out.write(path)

@@ -2,7 +2,7 @@
 
 A measure supplies, for every one of its elements e and quadrature points q,
 the weight W[e, q] (quadrature weight times Jacobian), the point x, the
-outward normal n (facets), the mesh size h[e] of the cell that owns the point,
+outward normal n (facets), the mesh size h[e] of the cell that owns the point (cells[e]),
 and for each field the tabulation of its basis functions and local dofs.
 
 The mesh size is the cell diameter (largest distance between two vertices);
@@ -157,6 +157,11 @@ class Cells(Measure):
     def h(self):
         return cell_diameters(self.mesh)
 
+    @property
+    def cells(self):
+        """The cell owning each element: itself."""
+        return np.arange(self.mesh.nelements)
+
     def attach(self, field):
         if field.mesh is self.mesh and self._same_quadrature(field.basis):
             self._bases[(id(field.element), False)] = field.basis  # reuse the field's own basis
@@ -181,7 +186,12 @@ class Facets(Measure):
 
     @property
     def h(self):
-        return cell_diameters(self.mesh)[self.basis.tind]
+        return cell_diameters(self.mesh)[self.cells]
+
+    @property
+    def cells(self):
+        """The cell owning each facet."""
+        return np.asarray(self.basis.tind)
 
     @property
     def normals(self):
@@ -280,6 +290,7 @@ class Interface:
     points = property(lambda self: self.base.points)
     normals = property(lambda self: self.base.normals)
     h = property(lambda self: self.base.h)
+    cells = property(lambda self: self.base.cells)
     nelems = property(lambda self: self.base.nelems)
 
     def other_points(self, field):

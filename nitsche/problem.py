@@ -21,10 +21,11 @@ class Problem:
     energy: a density of the fields (integrated over the cells of the first
         field's mesh), an Integral, or a list of Integrals.
     constraints: Equality / Inequality / Penalty constraints.
-    alpha0_limits: {constraint name: limit} computed on a coarse mesh, used to
-        resolve alpha0='auto' and to check given values; computed here if omitted.
-    self.constraints: the constraints, those with alpha0='auto' replaced by copies with
-    the resolved value (the user's constraint and Scaling are not changed).
+    alpha0_limits: {constraint name: limit}: one stability limit for all elements of a
+        constraint (e.g. from stability_limits()) instead of the element-local ones computed here.
+
+    After construction: limits[name] and alpha0[name] per element of each constraint, and
+    alpha0_limits[name] the smallest limit.
     """
 
     def __init__(self, fields, energy, constraints=(), alpha0_limits=None):
@@ -52,10 +53,9 @@ class Problem:
         self._check_arguments()
         self.energy_terms = [Term(i.pointwise(), i.names, i.on, self.fields, self.offsets,
                                   "the energy density") for i in self.integrals]
-        self.alpha0_limits = dict(alpha0_limits or {})
-        self.constraints = self._resolve_alpha0()
         self.constraint_terms = [Term(c.pointwise(), c.names, c.on, self.fields, self.offsets,
                                       f"constraint '{c.name}'", keep_points=True) for c in self.constraints]
+        self._resolve_alpha0(dict(alpha0_limits or {}))
         self.value_terms = [t.with_pointwise(c.values())
                             for c, t in zip(self.constraints, self.constraint_terms)]
         self.assembler = Assembler(self.energy_terms + self.constraint_terms, self.ndofs)
@@ -73,70 +73,128 @@ class Problem:
             check_arguments(c.multiplier_names, self.by_name, f"the multiplier of constraint '{c.name}'")
 
     # -- alpha0 -----------------------------------------------------------------
-    def _resolve_alpha0(self):
-        """The constraints with alpha0='auto' resolved (copies) from the stability limits,
-        computed for those with a multiplier unless given; a given alpha0 above its limit
-        warns."""
-        needs = [c for c in self.constraints
-                 if c.multiplier is not None and c.name not in self.alpha0_limits]
-        x, K = self._energy_hessian() if needs else (None, None)
-        resolved = []
-        for c in self.constraints:
-            if c in needs:
-                try:
-                    self.alpha0_limits[c.name] = self._stability_limit(c, x, K)
-                except SingularEnergy:
-                    if c.scaling.is_auto:
-                        raise ValueError(f"alpha0='auto' for constraint '{c.name}': {SINGULAR}; "
-                                         f"give alpha0 explicitly or fix {FIX}") from None
-                    warnings.warn(f"constraint '{c.name}': alpha0 = {c.scaling.alpha0:g} is not "
-                                  f"checked against a stability limit: {SINGULAR}", StabilityWarning)
-            limit = self.alpha0_limits.get(c.name, np.inf)
-            if c.scaling.is_auto:
-                c = c.with_scaling(c.scaling.resolved(auto_alpha0(limit)))
-            elif c.multiplier is not None and c.scaling.alpha0 >= limit:
-                warnings.warn(f"constraint '{c.name}': alpha0 = {c.scaling.alpha0:g} exceeds the "
-                              f"stability limit {limit:.4g} (J_h is not convex; Newton may fail); "
-                              f"use alpha0 < {limit:.4g} or alpha0='auto'", StabilityWarning)
-            resolved.append(c)
-        return resolved
+    def _resolve_alpha0(self, given):
+        """alpha0 per element of every constraint, as data of its term (the user's Scaling is
+        left as given); a given value above an element's limit warns."""
+        self.limits, self.alpha0 = {}, {}
+        needs = [c for c in self.constraints if c.multiplier is not None and c.name not in given
+                 and (c.scaling.needs_limit or self._multiplier_on_own_mesh(c))]
+        local = self.local_limits(needs)
+        for c in needs:
+            unbounded = int((local[c.name] == 0).sum())
+            if not unbounded:
+                continue
+            why = (f"on {unbounded} of its elements {UNBOUNDED}")
+            if c.scaling.needs_limit:
+                raise ValueError(f"alpha0={c.scaling.alpha0!r} for constraint '{c.name}': {why}; "
+                                 f"give alpha0 as a number, or fix {FIX}")
+            warnings.warn(f"constraint '{c.name}': alpha0 is not checked against a stability "
+                          f"limit {why}", StabilityWarning)
+        for c, t in zip(self.constraints, self.constraint_terms):
+            limit = np.full(t.nel, given[c.name], dtype=float) if c.name in given \
+                else local.get(c.name, np.full(t.nel, np.inf))
+            alpha0 = c.scaling.per_element(limit, centroids(t), t.h)
+            self.limits[c.name], self.alpha0[c.name] = limit, alpha0
+            t.alpha0 = alpha0
+            over = (alpha0 >= limit) & (limit > 0)  # (limit 0: no limit, warned above)
+            if over.any():
+                warnings.warn(f"constraint '{c.name}': alpha0 = {alpha0[over].max():g} exceeds the "
+                              f"stability limit {limit[over].min():.4g} on {over.sum()} of {t.nel} "
+                              f"elements (J_h may not be convex; Newton may fail); use a smaller "
+                              f"alpha0 or alpha0='auto'", StabilityWarning)
+        self.alpha0_limits = {c.name: float(self.limits[c.name].min()) for c in self.constraints
+                              if c.multiplier is not None}
+
+    def local_limits(self, constraints=None):
+        """{constraint name: the element-local stability limit of alpha0 on each element}
+        (nitsche.stability): batched eigenproblems of the cells that own the elements."""
+        from .stability import local_limits
+        names = {c.name for c in (self.constraints if constraints is None else constraints)}
+        x = self.initial(None)
+        free = np.zeros(self.ndofs, bool)
+        free[self.free] = True
+        out = {}
+        for c, t in zip(self.constraints, self.constraint_terms):
+            if c.name not in names or c.multiplier is None:
+                continue
+            if not any(k in self.by_name for k in c.multiplier_names):  # lambda = q given: B = 0
+                out[c.name] = np.full(t.nel, np.inf)
+                continue
+            mesh = c.on.mesh
+            if not self._multiplier_on_own_mesh(c):
+                raise ValueError(f"constraint '{c.name}': element-local alpha0 limits need the "
+                                 "multiplier's fields on the constraint's own mesh; give alpha0 as "
+                                 "a number (Problem.stability_limits() checks it)")
+            energy = [e for e in self.energy_terms
+                      if e.measure.kind == "cells" and e.measure.mesh is mesh]
+            if not energy:
+                raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
+                                 "constraint's mesh to bound its multiplier")
+            B = t.with_pointwise(c.scaled_multiplier())  # on the constraint's tabulations
+            B.alpha0 = np.ones(t.nel)
+            out[c.name] = local_limits(*multiplier_jacobian(B, c, x), t.cells, free,
+                                       lambda cells: [cell_hessians(e, x, cells) for e in energy])
+        return out
+
+    def _multiplier_on_own_mesh(self, c):
+        return all(self.by_name[k].mesh is c.on.mesh for k in c.multiplier_names if k in self.by_name)
+
+    def _gram(self, c, alpha0=None):
+        """B (free dofs): the Gram matrix of sqrt(alpha/alpha0) D lambda of a constraint, or
+        of sqrt(alpha) D lambda with the given alpha0 per element (a fresh term: the
+        constraint's own may have released its tabulations)."""
+        try:
+            term = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
+                        f"the multiplier of constraint '{c.name}'")
+        except ConstantDensity:  # a given multiplier lambda = q: B = 0
+            return None
+        if alpha0 is not None:
+            term.alpha0 = alpha0
+        G, dofs = multiplier_jacobian(term, c, self.initial(None))
+        n = dofs.shape[1]
+        B = sp.coo_matrix((np.einsum("eqk,eql->ekl", G, G).ravel(),
+                           (np.repeat(dofs, n, axis=1).ravel(), np.tile(dofs, (1, n)).ravel())),
+                          shape=(self.ndofs, self.ndofs)).tocsr()
+        return B[self.free][:, self.free]
+
+    def _stiffness(self):
+        """K (free dofs): the Hessian of the energy J."""
+        K = Assembler(self.energy_terms, self.ndofs).hessian(self.initial(None))
+        return K[self.free][:, self.free]
 
     def stability_limits(self, constraints=None):
-        """alpha0 limit 1/C_I of each constraint with a multiplier, C_I the largest
-        eigenvalue of  B v = mu K v,  B = Hessian of int 1/2 (alpha/alpha0) lambda^2,
-        K = Hessian of the energy J (free dofs, at the initial guess); infinite for a
-        multiplier that does not depend on the fields (B = 0)."""
+        """Diagnostic: {name: 1/C_I}, the one alpha0 for all elements up to which J_h is
+        convex (each constraint alone), C_I the largest eigenvalue of the global pencil
+        B v = mu K v (B: Hessian of int 1/2 (alpha/alpha0) lambda^2; sparse LU of K);
+        infinite for a multiplier that does not depend on the fields (B = 0)."""
         constraints = self.constraints if constraints is None else constraints
-        x, K = self._energy_hessian()
-        limits = {}
+        limits, K = {}, None
         for c in constraints:
             if c.multiplier is None:
                 continue
+            B = self._gram(c)
+            K = self._stiffness() if K is None and B is not None else K
             try:
-                limits[c.name] = self._stability_limit(c, x, K)
+                mu = 0.0 if B is None else largest_generalized_eigenvalue(B, K)
             except SingularEnergy:
                 raise ValueError(f"constraint '{c.name}' has no stability limit of alpha0: "
                                  f"{SINGULAR}; fix {FIX}") from None
+            limits[c.name] = 1.0 / mu if mu > 0 else np.inf
         self._release_measures()
         return limits
 
-    def _energy_hessian(self):
-        """The initial guess x and K, the Hessian of J at x on the free dofs."""
-        x = self.initial(None)
-        K = Assembler(self.energy_terms, self.ndofs).hessian(x)
-        return x, K[self.free][:, self.free]
-
-    def _stability_limit(self, c, x, K):
-        """1/C_I of constraint c (see stability_limits); SingularEnergy when K is singular
-        or indefinite on a direction where B is not zero."""
-        try:
-            term = Term(c.multiplier_square(), c.multiplier_names, c.on, self.fields, self.offsets,
-                        f"the multiplier of constraint '{c.name}'")
-        except ConstantDensity:  # a given multiplier lambda = q: B = 0
-            return np.inf
-        B = Assembler([term], self.ndofs).hessian(x)[self.free][:, self.free]
-        mu = largest_generalized_eigenvalue(B, K)
-        return 1.0 / mu if mu > 0 else np.inf
+    def stability_ratio(self):
+        """Diagnostic: the largest eigenvalue of B_alpha v = mu K v, B_alpha the Hessian of
+        the sum over constraints of int 1/2 alpha lambda^2 with this problem's alpha0 on
+        each element: J_h is convex if it is at most 1 (global sparse LU of K)."""
+        grams = [self._gram(c, self.alpha0[c.name]) for c in self.constraints
+                 if c.multiplier is not None]
+        grams = [B for B in grams if B is not None]
+        if not grams:
+            return 0.0
+        ratio = largest_generalized_eigenvalue(sum(grams[1:], grams[0]), self._stiffness())
+        self._release_measures()
+        return ratio
 
     # -- vectors ----------------------------------------------------------------
     def initial(self, x0):
@@ -283,7 +341,7 @@ class Problem:
         large loads v reached 8 alpha0 U: hence the factor 50); an infeasible one (an
         obstacle above the boundary values, a gap that cannot be met) keeps v ~ U and
         lambda_N ~ v / alpha -> oo.  Flagged: at the most violated point
-            v > violation_limit = min(1/2, 50 alpha0) U   and   v > 2 alpha |lambda(u_h)|
+            v > violation_limit = min(1/2, 50 alpha0_T) U   and   v > 2 alpha |lambda(u_h)|
         (the second: the violation is not the consistency term alpha (lambda - lambda_N)
         with lambda_N ~ lambda; it also keeps round-off of a zero solution unflagged)."""
         rep, values, parts = {}, self.constraint_values(x), self.split(x)
@@ -299,9 +357,14 @@ class Problem:
             viol = float(violation[worst])
             size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
                        default=0.0)
-            limit = min(0.5, 50 * c.scaling.alpha0) * size
+            a, limits = self.alpha0[c.name], self.limits[c.name]
+            limit = min(0.5, 50 * float(np.broadcast_to(a, violation.shape[:1])[worst[0]])) * size
             consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * v["lam"], violation.shape)[worst]))
-            rep[c.name] = dict(kind=c.kind, alpha0=c.scaling.alpha0,
+            rep[c.name] = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
+                               alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
+                               alpha0_limit_min=float(limits.min()),
+                               alpha0_limit_median=float(np.median(limits)),
+                               alpha0_limit_max=float(limits.max()),
                                active_count=int(active.sum()),
                                contact_measure=float((v["W"] * active).sum()),
                                max_violation=viol,
@@ -313,14 +376,33 @@ class Problem:
 
 
 INGREDIENTS = ("gap g", "multiplier lambda", "scaling alpha")
+UNBOUNDED = ("the energy of the cell does not bound the multiplier: lambda is not zero on the "
+             "kernel of the cell's energy Hessian (a rigid-body mode, a field without stiffness "
+             "there, or inverted elements)")
 SINGULAR = ("the energy Hessian at the initial guess is singular or indefinite where the "
             "multiplier is not zero (a rigid-body mode, a field without Dirichlet conditions, "
             "or inverted elements)")
 FIX = "the supports (Dirichlet conditions) or the initial guess"
-SAFE_FRACTION = 0.5  # alpha0='auto' takes this fraction of the stability limit
-AUTO_CAP = 0.1       # ... and at most this when the multiplier term is unconditionally stable
 
 
-def auto_alpha0(limit):
-    """A safe alpha0 for a computed stability limit."""
-    return min(SAFE_FRACTION * limit, AUTO_CAP)
+def cell_hessians(term, x, cells):
+    """The element Hessians of an energy term at x on the given cells, and their dofs (of a
+    quadratic term: from all of its element Hessians, stored for the Newton assembly)."""
+    H = term.quadratic_parts()[2][cells] if term.is_quadratic else term.run("full", x, cells)[2]
+    return H, term.global_dofs[cells]
+
+
+def multiplier_jacobian(term, c, x):
+    """sqrt(W alpha) D lambda at each point of each element of a term of
+    c.scaled_multiplier(), on the dofs of the multiplier's fields: (elements, points, dofs)
+    and the global dofs (elements, dofs)."""
+    mine = np.concatenate([np.full(d.shape[1], f.name in c.multiplier_names)
+                           for d, f in zip(term.field_dofs, term.fields)])
+    return term.run("jacobian", x)[0][:, :, mine], term.global_dofs[:, mine]
+
+
+def centroids(term):
+    """Centroid of each element of a term, shape (dim, elements)."""
+    W = term.W[:term.nel]
+    return (np.einsum("eq,eqd->de", W, term.x[:term.nel]) / W.sum(1))
+

@@ -54,7 +54,7 @@ def nested(make_problem, levels, **newton_options):
         prev = (problem, result)
 
 
-def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, progress=False):
+def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=False):
     """Solve the case's levels first .. level by nested iteration.
 
     Returns (problem, result, iterations per level, failure): the finest level's problem
@@ -63,7 +63,7 @@ def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, p
     failure on the first level returns its unconverged result (an error there is raised)."""
     prev, its = None, []
     try:
-        for k, problem, result in nested(lambda k: case.problem(k, degree, p, limits),
+        for k, problem, result in nested(lambda k: case.problem(k, degree, p),
                                          range(first, level + 1), **(newton_options or {})):
             its.append(result.iterations)
             if progress:
@@ -81,18 +81,30 @@ def solve_nested(case, level, degree, p, limits, newton_options=None, first=0, p
     return (*prev, its, None)
 
 
+def alpha0_summary(problem):
+    """alpha0 and its stability limit per constraint with a multiplier: min / median / max
+    over the elements (flat keys, e.g. contact_alpha0_min)."""
+    out = {}
+    for c in problem.constraints:
+        if c.multiplier is None:
+            continue
+        for what, v in (("alpha0", problem.alpha0[c.name]), ("alpha0_limit", problem.limits[c.name])):
+            for stat, fn in (("min", np.min), ("median", np.median), ("max", np.max)):
+                out[f"{c.name}_{what}_{stat}"] = float(fn(v))
+    return out
+
+
 def run_study(case, levels, degree, p, start=0, progress=True, newton_options=None):
     """Solve levels start .. start+levels-1; returns the list of rows (dicts).
 
     A case's optional hook study_extra(problem, result, row) adds its own quantities."""
     extra = getattr(case.module, "study_extra", None)
-    limits = case.alpha0_limits(degree, p)
     rows, prev = [], None
     out = sys.stderr
     for i, level in enumerate(range(start, start + levels)):
         t0 = time.perf_counter()
         try:
-            problem = case.problem(level, degree, p, limits)
+            problem = case.problem(level, degree, p)
             if progress:
                 print(f"[{i + 1}/{levels}] level {level}: {problem.free.size} unknowns ...",
                       end="", file=out, flush=True)
@@ -110,6 +122,7 @@ def run_study(case, levels, degree, p, start=0, progress=True, newton_options=No
                    energy=result.energy, active_count=result.active_count,
                    contact_measure=result.contact_measure, max_violation=result.max_violation,
                    seconds=time.perf_counter() - t0, compile_seconds=result.timings["compile"])
+        row.update(alpha0_summary(problem))
         if x0 is not None:
             # a case may define the successive difference itself (non-nested spaces, e.g. Morley)
             difference = getattr(case.module, "difference", None)

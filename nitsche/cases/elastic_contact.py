@@ -29,7 +29,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector, CellBasis
 
 import nitsche as ni
-from nitsche.case import OneOf, POISSON, POSITIVE, ParameterError
+from nitsche.case import Interval, OneOf, POISSON, POSITIVE, ParameterError
 from nitsche.ops import dot, sym_grad
 from nitsche.supermesh import interface_report
 
@@ -54,9 +54,14 @@ PARAMETERS = {
     "curved": (False, "hertz: body 2's bottom is the parabola y = x^2/(2R) itself (paired "
                       "along the normal on the supermesh) instead of a flat face with the "
                       "gap g0"),
+    "hx": (0.025, "hertz: cell width at the contact (x < 0.1 L), relative to L"),
+    "hy": (0.025, "hertz: thickness of the cell layers at the interface (y within 0.05 L), "
+                  "relative to L"),
+    "growth": (1.3, "hertz: ratio of neighbouring cell sizes away from the contact"),
 }
 RANGES = {"setup": OneOf(("punch", "hertz")), "E1": POSITIVE, "E2": POSITIVE, "nu1": POISSON,
-          "nu2": POISSON, "alpha0": POSITIVE, "R": POSITIVE, "L": POSITIVE}
+          "nu2": POISSON, "alpha0": POSITIVE, "R": POSITIVE, "L": POSITIVE, "hx": POSITIVE,
+          "hy": POSITIVE, "growth": Interval(1.0, closed_lo=True)}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.0}  # punch: limited by corner and free-boundary singularities
 
@@ -114,8 +119,8 @@ def _meshes(level, p):
             m2 = MeshTri.init_tensor(np.linspace(0, 1, n + 1), np.linspace(1, 2, n + 1))
         return m1, m2
     if p.setup == "hertz":
-        xs = graded(p.L, 0.1 * p.L, 4)
-        ys = graded(p.L, 0.05 * p.L, 2)
+        xs = graded(p.L, 0.1 * p.L, round(0.1 / p.hx), p.growth)
+        ys = graded(p.L, 0.05 * p.L, round(0.05 / p.hy), p.growth)
         m1 = MeshTri.init_tensor(xs, -ys[::-1]).refined(level)
         xs2 = xs if p.matching else graded(p.L, 0.1 * p.L, 3)
         ys2 = ys[ys <= 0.5 * p.L + 1e-12]

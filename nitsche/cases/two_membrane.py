@@ -148,7 +148,7 @@ def companion(problem, result):
     other["method"] = "penalty" if p.method == "nitsche" else "nitsche"
     case = get(NAME)
     q = case.parameters(other)
-    prob = case.problem(level, degree, q, case.alpha0_limits(degree, q))
+    prob = case.problem(level, degree, q)
     res = prob.minimize(result.x)
     return prob, res
 
