@@ -249,6 +249,7 @@ class Supermesh:
     points = property(lambda self: self.x1)
     normals = property(lambda self: self.n if self.s1.outward else None)
     h = property(lambda self: cell_diameters(self.mesh)[self.cells1])
+    cells = property(lambda self: self.cells1)  # the cell of this body owning each piece
     nelems = property(lambda self: self.W.shape[0])
     vertices = property(lambda self: self.s1.vertices[:, self.owner[0]])
 
