@@ -111,13 +111,15 @@ def hertz_errors(levels, **sets):
 
 def test_hertz_p2_non_matching_pressure_converges():
     """P2, body 2 graded differently (non-matching): on the supermesh the pointwise pressure
-    error in the core of the contact zone falls (5.7 %, 2.4 %); at the quadrature points of
-    body 1 it stays at about 7-8 % (issue 11)."""
+    error in the core of the contact zone falls (1.5 %, 0.74 %, 0.24 %, 0.17 % on levels
+    0-3, element-local alpha0); at the quadrature points of body 1 it does not (1.7 %, 2.5 %,
+    2.6 %, 2.6 %) (issue 11)."""
     errs = hertz_errors(2, matching=False)
-    assert errs[1]["pressure_max_core"] < 0.5 * errs[0]["pressure_max_core"]
-    assert errs[1]["pressure_max_core"] < 0.03 and errs[1]["peak_pressure"] < 0.005
+    assert errs[1]["pressure_max_core"] < 0.6 * errs[0]["pressure_max_core"]
+    assert errs[1]["pressure_max_core"] < 0.012 and errs[1]["peak_pressure"] < 0.005
     points = hertz_errors(2, matching=False, supermesh=False)
-    assert points[1]["pressure_max_core"] > 0.06
+    assert points[1]["pressure_max_core"] > 0.9 * points[0]["pressure_max_core"]
+    assert points[1]["pressure_max_core"] > 2 * errs[1]["pressure_max_core"]
 
 
 def test_hertz_p2_on_a_curved_body():
