@@ -28,21 +28,8 @@ from skfem import ElementTriP2, ElementVector, MeshTri
 
 import nitsche as ni
 from nitsche.ops import dot
+from nitsche.meshes import graded
 from nitsche.reactions import reactions
-
-
-def graded(length, fine, n_fine, growth=1.25):
-    """Points 0 = t_0 < ... < t_m = length: n_fine equal cells up to `fine`, then cells
-    that grow by the factor `growth` (the last one ends at `length`)."""
-    t = list(np.linspace(0.0, fine, n_fine + 1))
-    step = fine / n_fine
-    while t[-1] + step * growth < length:
-        step *= growth
-        t.append(t[-1] + step)
-    t[-1] = length if length - t[-1] < 0.5 * step else t[-1]
-    if t[-1] != length:
-        t.append(length)
-    return np.array(t)
 
 
 def main(level=0, E=1.0, nu=0.3, R=1.0, d=0.01, size=320.0, n_fine=6, growth=1.25, alpha0="auto",

@@ -1,0 +1,16 @@
+"""Mesh helpers: graded point sequences for tensor meshes (fine near 0, coarse far away)."""
+import numpy as np
+
+
+def graded(length, fine, n_fine, growth):
+    """Points 0 = t_0 < ... < t_m = length: n_fine equal cells up to `fine`, then cells
+    that grow by the factor `growth` (the last one ends at `length`)."""
+    t = list(np.linspace(0.0, fine, n_fine + 1))
+    step = fine / n_fine
+    while t[-1] + step * growth < length:
+        step *= growth
+        t.append(t[-1] + step)
+    t[-1] = length if length - t[-1] < 0.5 * step else t[-1]
+    if t[-1] != length:
+        t.append(length)
+    return np.array(t)
