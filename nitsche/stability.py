@@ -49,7 +49,18 @@ def local_limits(G, B_dofs, owners, free, cell_hessians):
     linear lambda); B_dofs (elements, m) the global dofs; owners (elements,) the cells;
     free: boolean mask of the free global dofs; cell_hessians(cells) -> [(K_e (cells, n_e,
     n_e), dofs (cells, n_e))] the Hessians of the energy's cell terms on those cells.
-    The cells are taken in chunks that keep each dense batch near BATCH_ENTRIES numbers."""
+    The cells are taken in chunks that keep each dense batch near BATCH_ENTRIES numbers.
+    Elements where D lambda vanishes (e.g. lambda = -lap u - f with P1) have B_T = 0: no
+    limit, and their cells are not solved."""
+    moving = np.abs(G).max(axis=(1, 2)) > 0 if G.size else np.zeros(len(owners), bool)
+    limit = np.full(len(owners), np.inf)
+    if moving.any():
+        limit[moving] = _limits(G[moving], B_dofs[moving], owners[moving], free, cell_hessians)
+    return limit
+
+
+def _limits(G, B_dofs, owners, free, cell_hessians):
+    """local_limits of elements with B_T != 0."""
     cells, owner = np.unique(owners, return_inverse=True)
     order = np.argsort(owner, kind="stable")
     starts = np.searchsorted(owner[order], np.arange(cells.size + 1))
