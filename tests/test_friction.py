@@ -157,3 +157,22 @@ def test_friction_errors_name_the_parameter():
 def test_gmres_solves_the_non_symmetric_system():
     result = block("coulomb", -1).minimize(solver="gmres").check()
     assert result.solver == "gmres"
+
+
+def test_cattaneo_mindlin_stick_ratio(tmp_path):
+    """nitsche run friction: c/a within a few per cent of sqrt(1 - Q/(F P)) (level 1: 2.1 %),
+    the half-width within 3 % of Hertz's, the tangential load at Q_ratio F P."""
+    import json
+    from nitsche.cli import main
+    out = tmp_path / "run"
+    assert main(["run", "friction", "--level", "1", "--no-nested", "--out", str(out)]) == 0
+    data = json.loads((out / "result.json").read_text())
+    cm = data["cattaneo_mindlin"]
+    assert data["stick_ratio"] == cm["stick_ratio"] and data["contact_half_width"] > 0
+    assert cm["load_ratio"] == pytest.approx(0.5, rel=2e-3)
+    assert abs(data["stick_ratio"] - cm["stick_ratio_reference"]) <= 0.03 * cm["stick_ratio_reference"]
+    assert cm["error_half_width"] < 0.035
+    rep = data["constraints"]["contact"]
+    assert rep["kind"] == "coulomb" and rep["stick_measure"] > 0 and rep["slip_measure"] > 0
+    assert data["solver"] == "superlu"
+    assert (out / "friction_tractions.png").exists()
