@@ -100,7 +100,8 @@ class Problem:
             alpha0 = c.scaling.per_element(limit, centroids(t), t.h)
             self.limits[c.name], self.alpha0[c.name] = limit, alpha0
             t.alpha0 = alpha0
-            over = (alpha0 >= limit) & (limit > 0)  # (limit 0: no limit, warned above)
+            # (limit 0: no limit, warned above; theta = -1 is stable for every alpha0)
+            over = (alpha0 >= limit) & (limit > 0) & (c.theta != -1)
             if over.any():
                 warnings.warn(f"constraint '{c.name}': alpha0 = {alpha0[over].max():g} exceeds the "
                               f"stability limit {limit[over].min():.4g} on {over.sum()} of {t.nel} "
