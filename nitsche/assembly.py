@@ -117,11 +117,12 @@ class Term:
     """A pointwise density integrated on a measure, ready to assemble."""
 
     def __init__(self, pointwise, names, measure, fields, offsets, label, keep_points=False,
-                 residual=False):
+                 residual=False, vector=False):
         """keep_points: store the quadrature points x even if the density does not use
         them (constraints keep them for their reports); residual: the density returns the
-        pair (c, q) of a residual term (module docstring)."""
-        self.residual = residual
+        pair (c, q) of a residual term (module docstring); vector: it may return an array
+        (e.g. a vector multiplier, for its Jacobian), not an energy."""
+        self.residual, self.vector = residual, vector
         by_name = {f.name: f for f in fields}
         check_arguments(names, by_name, label)
         if "n" in names and measure.kind == "cells":
@@ -186,7 +187,7 @@ class Term:
         if self.residual:
             if not (isinstance(out, tuple) and len(out) == 2 and out[0].shape == out[1].shape):
                 raise ValueError(f"{self.label} must return a pair (c, q) of arrays of one shape")
-        elif hasattr(out, "shape") and out.shape != ():
+        elif hasattr(out, "shape") and out.shape != () and not self.vector:
             raise ValueError(f"{self.label} must return a scalar at each point, not shape {out.shape}")
         layout = []
         for f in fs:

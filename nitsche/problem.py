@@ -150,7 +150,7 @@ class Problem:
         constraint's own may have released its tabulations)."""
         try:
             term = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
-                        f"the multiplier of constraint '{c.name}'")
+                        f"the multiplier of constraint '{c.name}'", vector=True)
         except ConstantDensity:  # a given multiplier lambda = q: B = 0
             return None
         if alpha0 is not None:

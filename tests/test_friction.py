@@ -176,3 +176,10 @@ def test_cattaneo_mindlin_stick_ratio(tmp_path):
     assert rep["kind"] == "coulomb" and rep["stick_measure"] > 0 and rep["slip_measure"] > 0
     assert data["solver"] == "superlu"
     assert (out / "friction_tractions.png").exists()
+
+
+def test_vector_multiplier_stability_limits():
+    """The tangential component adds to B: the global limit is at most the frictionless one."""
+    friction, frictionless = block("coulomb", -1), block("inequality", 1)
+    assert friction.stability_limits()["contact"] <= frictionless.stability_limits()["contact"]
+    assert 0 < friction.alpha0_limits["contact"] <= frictionless.alpha0_limits["contact"]
