@@ -6,7 +6,12 @@ z[e, q] = T[e, q] u_e (T: basis tabulation, u_e: element dofs),
 
     energy_e = sum_q W w,   grad_e = sum_q W T^T dw/dz,   hess_e = sum_q W T^T d2w/dz2 T.
 
-The pointwise derivatives come from jax.grad / jax.hessian, vmapped over all
+A residual term is a density returning a pair (c, q) of arrays, paired with the test
+function's jets: r_e(u; v) = sum_q W c . Dq[v], i.e. R(z) = (dq/dz)^T c (a vector-Jacobian
+product) in place of dw/dz, and its (possibly non-symmetric) Jacobian dR/dz in place of
+d2w/dz2; an energy term is the case R = dw/dz.
+
+The pointwise derivatives come from jax.grad / jax.jacfwd, vmapped over all
 points and jitted on fixed-size chunks of elements, so one compiled kernel
 serves every Newton step and every refinement level.  The sparsity pattern and
 the scatter map into CSR storage are computed once per mesh.
@@ -111,9 +116,13 @@ class ConstantDensity(ValueError):
 class Term:
     """A pointwise density integrated on a measure, ready to assemble."""
 
-    def __init__(self, pointwise, names, measure, fields, offsets, label, keep_points=False):
+    def __init__(self, pointwise, names, measure, fields, offsets, label, keep_points=False,
+                 residual=False, vector=False):
         """keep_points: store the quadrature points x even if the density does not use
-        them (constraints keep them for their reports)."""
+        them (constraints keep them for their reports); residual: the density returns the
+        pair (c, q) of a residual term (module docstring); vector: it may return an array
+        (e.g. a vector multiplier, for its Jacobian), not an energy."""
+        self.residual, self.vector = residual, vector
         by_name = {f.name: f for f in fields}
         check_arguments(names, by_name, label)
         if "n" in names and measure.kind == "cells":
@@ -175,7 +184,10 @@ class Term:
         vec = jax.ShapeDtypeStruct((self.dim,), jnp.float64)
         scalar = jax.ShapeDtypeStruct((), jnp.float64)
         out = jax.eval_shape(trace, zs, vec, vec, scalar, scalar)
-        if hasattr(out, "shape") and out.shape != ():
+        if self.residual:
+            if not (isinstance(out, tuple) and len(out) == 2 and out[0].shape == out[1].shape):
+                raise ValueError(f"{self.label} must return a pair (c, q) of arrays of one shape")
+        elif hasattr(out, "shape") and out.shape != () and not self.vector:
             raise ValueError(f"{self.label} must return a scalar at each point, not shape {out.shape}")
         layout = []
         for f in fs:
@@ -189,10 +201,19 @@ class Term:
         return layout
 
     def with_pointwise(self, pointwise):
-        """The same term (same tabulations) with another density of the same jets."""
+        """The same term (same tabulations) with another density (not a residual) of the
+        same jets."""
         other = copy.copy(self)
-        other.pointwise, other._kernels = pointwise, {}
+        other.pointwise, other._kernels, other.residual = pointwise, {}, False
+        for cached in ("_quadratic", "_coupling"):
+            other.__dict__.pop(cached, None)
         return other
+
+    def output_shape(self):
+        """The shape of the density's value at a point."""
+        m = sum(mf for mf, _ in self.sizes)
+        vec = jnp.zeros(self.dim)
+        return jax.eval_shape(self._point_fn(), jnp.zeros(m), vec, vec, 0.1, 1.0).shape
 
     @property
     def sizes(self):
@@ -233,7 +254,8 @@ class Term:
             if key not in _COMPILED:
                 m = sum(mf for mf, _ in self.sizes)
                 vec = jnp.zeros(self.dim)
-                jaxpr = jax.make_jaxpr(jax.hessian(self._point_fn()))(jnp.zeros(m), vec, vec, 0.1, 1.0)
+                second = jax.jacfwd(derivative(self._point_fn(), self.residual))
+                jaxpr = jax.make_jaxpr(second)(jnp.zeros(m), vec, vec, 0.1, 1.0)
                 _COMPILED[key] = not _depends_on_first_input(jaxpr.jaxpr)
             self._quadratic = _COMPILED[key]
         return self._quadratic
@@ -242,7 +264,9 @@ class Term:
     def coupling(self):
         """coupling[i][j]: whether d2w/dz_i dz_j (fields i, j) can be non-zero, i.e. whether
         dw/dz_i depends on z_j (found from the computation graph); the element Hessian
-        blocks of uncoupled pairs are exact zeros and not computed."""
+        blocks of uncoupled pairs are exact zeros and not computed (all pairs of a residual)."""
+        if self.residual:
+            return tuple((True,) * len(self.sizes) for _ in self.sizes)
         if not hasattr(self, "_coupling"):
             key = ("coupling", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
             if key not in _COMPILED:
@@ -271,12 +295,12 @@ class Term:
         (energy, gradient, Hessian), 'jacobian' (per point) or 'values'."""
         if kind in self._kernels:
             return self._kernels[kind]
-        key = (kind, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
+        key = (kind, self.residual, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
                tuple(T.shape[1:] for T in self.T), self.shared,
                self.dim, self.has_normal)
         if key not in _COMPILED:
             coupling = self.coupling if kind == "full" else None
-            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq, coupling)
+            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq, coupling, self.residual)
             args = [jax.ShapeDtypeStruct((1 if shared else self.chunk,) + T.shape[1:], jnp.float64)
                     for T, shared in zip(self.T, self.shared)]
             args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
@@ -324,8 +348,27 @@ def _depends_on_first_input(jaxpr):
     return any(_dependent_outputs(jaxpr, [True] + [False] * (len(jaxpr.invars) - 1)))
 
 
-def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
+def derivative(point_fn, residual):
+    """z -> dw/dz of an energy density, or z -> R(z) = (dq/dz)^T c of a residual's (c, q)."""
+    if not residual:
+        return jax.grad(point_fn)
+
+    def R(z, *rest):
+        _, pull, c = jax.vjp(lambda z: point_fn(z, *rest)[::-1], z, has_aux=True)
+        return pull(c)[0]
+    return R
+
+
+def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
     m = sum(mf for mf, _ in sizes)
+    first = derivative(point_fn, residual)
+
+    def value_and_first(z, *rest):
+        """(w, dw/dz), or (0, R) for a residual term (it has no energy)."""
+        return (jnp.zeros(()), first(z, *rest)) if residual else jax.value_and_grad(point_fn)(z, *rest)
+
+    def value(z, *rest):
+        return jnp.zeros(()) if residual else point_fn(z, *rest)
     nf = len(sizes)
 
     offsets = np.cumsum([0] + [mf for mf, _ in sizes])
@@ -357,13 +400,13 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
     def energy(*a):
         Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        w = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0)).reshape(chunk, nq)
+        w = jax.vmap(value)(z, *points(W, x, n, h, alpha0)).reshape(chunk, nq)
         return (jnp.sum(W * w, axis=1),)
 
     def gradient(*a):
         Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *points(W, x, n, h, alpha0))
+        w, dw = jax.vmap(value_and_first)(z, *points(W, x, n, h, alpha0))
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
         return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw)
 
@@ -371,8 +414,8 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
         Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
         px = points(W, x, n, h, alpha0)
-        w, dw = jax.vmap(jax.value_and_grad(point_fn))(z, *px)
-        d2w = jax.vmap(jax.hessian(point_fn))(z, *px)
+        w, dw = jax.vmap(value_and_first)(z, *px)
+        d2w = jax.vmap(jax.jacfwd(first))(z, *px)
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
         Wd2w = W[..., None, None] * d2w.reshape(chunk, nq, m, m)
         return (jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw),
@@ -391,14 +434,15 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None):
         Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
         out = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0))
-        return tuple(o.reshape(chunk, nq) for o in out)
+        return tuple(o.reshape((chunk, nq) + o.shape[1:]) for o in out)
 
     return {"energy": energy, "gradient": gradient, "full": full, "jacobian": jacobian,
             "values": values}[kind]
 
 
 class Assembler:
-    """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms."""
+    """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms; residual
+    terms add to the gradient (the residual) and Hessian (its Jacobian), not to the energy."""
 
     def __init__(self, terms, ndofs):
         self.terms, self.ndofs = terms, ndofs
@@ -432,7 +476,7 @@ class Assembler:
     def energy(self, x, terms=None):
         E = 0.0
         for t, idx in zip(self.terms, self.scatter):
-            if terms is not None and t not in terms:
+            if terms is not None and t not in terms or t.residual:
                 continue
             if t.is_quadratic:
                 E0, g0, _, K = self._quadratic(t, idx)
@@ -452,7 +496,8 @@ class Assembler:
             if t.is_quadratic:
                 E0, g0, d, K = self._quadratic(t, idx)
                 Kx = K @ x
-                E, grad = E + E0 + g0 @ x + 0.5 * x @ Kx, grad + g0 + Kx
+                E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
+                grad = grad + g0 + Kx
                 if hessian:
                     data += d
                 continue

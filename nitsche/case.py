@@ -14,6 +14,9 @@ and optionally
     report(problem, result, p) -> {key: value} added to result.json
     figures(problem, result, p, folder) -> paths of figures written into folder
     study_extra(problem, result, row), study_figures(rows, p, degree, folder)
+    solve(problem, p, x0, **newton_options) -> Result: a load path (e.g. a normal step,
+                             then tangential steps; Problem.set_values) instead of
+                             problem.minimize(x0, **newton_options)
     RANGES                   {name: Interval or OneOf}: the physical range of a parameter
     check(p)                 raises ParameterError for combinations RANGES cannot say
                              (e.g. D1 <= D2)
@@ -193,6 +196,12 @@ class Case:
         if key not in self._limits:
             self._limits[key] = self.problem(level, degree, p).stability_limits()
         return dict(self._limits[key])
+
+    def solve(self, problem, x0=None, **newton_options):
+        """The case's load path (its solve hook), or Newton's method from x0."""
+        hook = getattr(self.module, "solve", None)
+        return hook(problem, problem.setup.p, x0, **newton_options) if hook \
+            else problem.minimize(x0, **newton_options)
 
     def errors(self, problem, result, p):
         fn = getattr(self.module, "errors", None)

@@ -29,7 +29,7 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
                                                      progress=True)
     else:
         problem = case.problem(level, degree, p)
-        result = problem.minimize(**options)
+        result = case.solve(problem, None, **options)
         its, failure = [result.iterations], None
         if not result.converged:
             failure = dict(level=level, reason=result.reason)

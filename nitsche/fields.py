@@ -47,7 +47,7 @@ class Field:
             raise ValueError(f"field name {name!r} must be a Python identifier (it names a density argument)")
         if name in ("x", "n", "h"):
             raise ValueError(f"field name {name!r} is reserved for the point, normal and mesh size")
-        self.name, self.mesh = name, mesh
+        self.name, self.mesh, self.intorder = name, mesh, intorder
         self.held = {}
         element = own_instance(element)  # one instance per mesh (ElementGlobal caches per instance)
         self.element = element
@@ -215,3 +215,11 @@ class Field:
             out[sel] = H[0, 1][sel]
         return out
 
+
+def history(field, name=None):
+    """A field of data: the values of `field` at the previous load step (default name
+    FIELD_old), on the same mesh and element with all of its dofs prescribed; a density
+    names it like any field (e.g. the slip increment (u - u_old) . t of a friction gap) and
+    Problem.set_values(name, x_field) moves it to the next step."""
+    return Field(name or f"{field.name}_old", field.mesh, field.element,
+                 fixed=np.arange(field.ndofs), intorder=field.intorder)

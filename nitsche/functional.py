@@ -9,6 +9,20 @@ the compiled kernels as data like h), the engine adds to the energy
 P = [.]_+ for an inequality and the identity for an equality; a penalty
 constraint has lambda = 0, i.e. int_S P(-g)^2 / (2 alpha).  The discrete
 multiplier (contact force) is lambda_N = P(lambda - g / alpha).
+
+In general g and lambda have several components (normal, tangential) and P is the
+projection onto a closed convex set K (the constraint's kind): R_+ (inequality), R
+(equality), R_+ x B(0, s) (Tresca friction, threshold s), or the Coulomb set
+{(p, t): p >= 0, |t| <= F p} reached through the normal part, P(s) = ([s_n]_+,
+P_B(F [s_n]_+)(s_t)).  With phi(s) = 1/2 |s|^2 - 1/2 dist(s, K)^2 (grad phi = P) the
+density is -1/2 alpha |lambda|^2 + alpha phi(lambda - g/alpha) and its derivative in a
+direction v is the residual
+
+    r_theta(u; v) = int_S -P(s) . Dg[v] + theta alpha (P(s) - lambda) . Dlambda[v],
+
+s = lambda - g/alpha, theta = 1 (symmetric: the energy's gradient), 0 (skew-symmetric)
+or -1 (non-symmetric, stable for every alpha0; Chouly, Hild, Renard).  A constraint
+without a potential (Coulomb) or with theta != 1 enters as this residual.
 """
 import inspect
 import math
@@ -127,6 +141,7 @@ def _fraction(alpha0):
 
 class Integral:
     """int_on density(fields..., x, n, h): one term of the energy J."""
+    residual = False
 
     def __init__(self, density, on):
         self.density, self.on = density, on
@@ -137,16 +152,90 @@ class Integral:
         return lambda args: call(density, names, args)
 
 
-class Constraint:
-    """g(u) >= 0 (inequality) or g(u) = 0 (equality) on a measure, with its
-    multiplier lambda(u) (None for a penalty constraint) and its scaling."""
+class Residual:
+    """int_on c(u) . Dq(u)[v]: a term of the residual given by a density returning the pair
+    (c, q) of arrays of one shape (the test function enters through the jets of q; an
+    energy density w is the case c = 1, q = w)."""
+    residual = True
 
-    def __init__(self, gap, multiplier, scaling, on, inequality, name=None):
+    def __init__(self, density, on):
+        self.density, self.on = density, on
+        self.names = argument_names(density, "the residual density")
+
+    pointwise = Integral.pointwise
+
+
+def _ball(t, radius):
+    """(P_B(t), Huber potential) for the ball B(0, radius): t min(1, radius/|t|) and
+    1/2 |t|^2 inside, radius |t| - radius^2/2 outside (safe derivatives at t = 0)."""
+    t2 = jnp.sum(t * t)
+    inside = t2 <= radius ** 2
+    norm = jnp.sqrt(jnp.where(inside, 1.0, t2))
+    return (jnp.where(inside, t, radius * t / norm),
+            jnp.where(inside, 0.5 * t2, radius * norm - 0.5 * radius ** 2))
+
+
+class Projection:
+    """The projection P onto the constraint's set K and, where it has one, its potential
+    phi (grad phi = P); for vectors the first component is the normal one."""
+
+    def __init__(self, kind, project, potential=None, friction=None, threshold=None):
+        self.kind, self.project, self.potential = kind, project, potential
+        self.friction, self.threshold = friction, threshold
+
+    @property
+    def frictional(self):
+        return self.kind in ("tresca", "coulomb")
+
+    def radius(self, P):
+        """The radius of the tangential ball at the projected value P (frictional kinds)."""
+        return self.threshold if self.kind == "tresca" else self.friction * P[..., 0]
+
+
+INEQUALITY = Projection("inequality", plus, lambda s: 0.5 * jnp.sum(plus(s) ** 2))
+EQUALITY = Projection("equality", lambda s: s, lambda s: 0.5 * jnp.sum(s ** 2))
+
+
+def tresca_ball(threshold):
+    """K = R_+ x B(0, threshold): P(s) = ([s_n]_+, P_B(s_t)), phi = 1/2 [s_n]_+^2 + Huber(s_t)."""
+    threshold = _number(threshold, "threshold", "the Tresca friction bound s", lambda s: s >= 0,
+                        "a number >= 0")
+
+    def project(s):
+        return jnp.concatenate([plus(s[:1]), _ball(s[1:], threshold)[0]])
+
+    def potential(s):
+        return 0.5 * plus(s[0]) ** 2 + _ball(s[1:], threshold)[1]
+    return Projection("tresca", project, potential, threshold=threshold)
+
+
+def coulomb_cone(friction):
+    """P(s) = ([s_n]_+, P_B(F [s_n]_+)(s_t)) (no potential: a residual form)."""
+    friction = _number(friction, "friction", "the Coulomb friction coefficient F", lambda f: f >= 0,
+                       "a number >= 0")
+
+    def project(s):
+        pn = plus(s[:1])
+        return jnp.concatenate([pn, _ball(s[1:], friction * pn[0])[0]])
+    return Projection("coulomb", project, friction=friction)
+
+
+class Constraint:
+    """g(u) in K (inequality g >= 0, equality g = 0, or a frictional set for g = (normal,
+    tangential)) on a measure, with its multiplier lambda(u) (None for a penalty
+    constraint), its scaling and theta (1, 0, -1: the symmetric, skew-symmetric and
+    non-symmetric Nitsche variants)."""
+
+    def __init__(self, gap, multiplier, scaling, on, inequality=True, name=None, theta=1,
+                 projection=None):
         if not isinstance(scaling, Scaling):
             raise TypeError("scaling must be nitsche.Scaling(alpha0, h_power, stiffness)")
         self.gap, self.multiplier, self.scaling, self.on = gap, multiplier, scaling, on
-        self.inequality = bool(inequality)
-        self.name = name or ("contact" if inequality else "equality")
+        self.projection = projection or (INEQUALITY if inequality else EQUALITY)
+        self.inequality = self.projection is not EQUALITY
+        self.theta = _number(theta, "theta", "the Nitsche variant: 1 symmetric, 0 skew-symmetric, "
+                             "-1 non-symmetric", lambda t: True, "a finite number (1, 0 or -1)")
+        self.name = name or ("contact" if self.inequality else "equality")
         self.gap_names = argument_names(gap, "the gap g")
         self.multiplier_names = argument_names(multiplier, "the multiplier") \
             if multiplier is not None else ()
@@ -154,9 +243,15 @@ class Constraint:
 
     @property
     def kind(self):
-        if self.multiplier is None:
+        if self.multiplier is None and not self.projection.frictional:
             return "penalty"
-        return "inequality" if self.inequality else "equality"
+        return self.projection.kind
+
+    @property
+    def residual(self):
+        """True when the constraint enters as a residual (no potential, or theta != 1 with a
+        multiplier), False when it is a term of the energy J_h."""
+        return self.projection.potential is None or (self.multiplier is not None and self.theta != 1)
 
     def _parts(self):
         gap, multiplier, scaling = self.gap, self.multiplier, self.scaling
@@ -171,17 +266,31 @@ class Constraint:
         return parts
 
     def pointwise(self):
-        """The Nitsche density -1/2 alpha lambda^2 + 1/2 alpha P(lambda - g/alpha)^2."""
-        parts, P = self._parts(), (plus if self.inequality else (lambda s: s))
+        """The Nitsche density -1/2 alpha |lambda|^2 + alpha phi(lambda - g/alpha), or, for a
+        residual constraint, the pair (c, q) = ((-P(s), theta alpha (P(s) - lambda)), (g, lambda))
+        of r_theta(u; v) = int c . Dq[v]."""
+        parts, projection, theta = self._parts(), self.projection, self.theta
 
         def density(args):
             g, lam, alpha = parts(args)
-            return -0.5 * alpha * lam ** 2 + 0.5 * alpha * P(lam - g / alpha) ** 2
-        return density
+            return -0.5 * alpha * jnp.sum(lam ** 2) + alpha * projection.potential(lam - g / alpha)
+
+        def pairs(args):
+            g, lam, alpha = (jnp.atleast_1d(v) for v in parts(args))
+            P = projection.project(lam - g / alpha)
+            return jnp.concatenate([-P, theta * alpha * (P - lam)]), jnp.concatenate([g, lam])
+        return pairs if self.residual else density
 
     def values(self):
-        """(g, lambda, alpha) at a point: for reports, contact pressure and active sets."""
-        return self._parts()
+        """(g, lambda, alpha, P(lambda - g/alpha)) at a point: for reports, tractions and
+        active sets (g, lambda, P vectors for a frictional constraint)."""
+        parts, projection = self._parts(), self.projection
+
+        def values(args):
+            g, lam, alpha = parts(args)
+            P = projection.project(jnp.atleast_1d(lam - g / alpha))
+            return g, lam, alpha, P.reshape(jnp.shape(lam))
+        return values
 
     def scaled_multiplier(self):
         """sqrt(alpha) lambda with the element's alpha0 (1: sqrt(alpha/alpha0) lambda, whose
@@ -194,16 +303,31 @@ class Constraint:
         return density
 
 
-def Equality(gap, multiplier, scaling, on, name=None):
+def Equality(gap, multiplier, scaling, on, name=None, theta=1):
     """Nitsche's method for g(u) = 0 (e.g. Dirichlet data)."""
-    return Constraint(gap, multiplier, scaling, on, inequality=False, name=name)
+    return Constraint(gap, multiplier, scaling, on, inequality=False, name=name, theta=theta)
 
 
-def Inequality(gap, multiplier, scaling, on, name=None):
+def Inequality(gap, multiplier, scaling, on, name=None, theta=1):
     """Nitsche's method for g(u) >= 0 (contact, obstacle, unilateral support)."""
-    return Constraint(gap, multiplier, scaling, on, inequality=True, name=name)
+    return Constraint(gap, multiplier, scaling, on, inequality=True, name=name, theta=theta)
 
 
 def Penalty(gap, scaling, on, inequality=True, name=None):
     """The penalty method: int P(-g)^2 / (2 alpha), no multiplier terms."""
     return Constraint(gap, None, scaling, on, inequality=inequality, name=name)
+
+
+def Tresca(gap, multiplier, scaling, on, threshold, theta=1, name="contact"):
+    """Contact with Tresca friction: g = (g_n, g_t) (normal gap, tangential slip increment),
+    lambda = (lambda_n, lambda_t) (pressure, tangential traction), K = R_+ x B(0, threshold);
+    a functional for theta = 1 (the Huber potential of the ball)."""
+    return Constraint(gap, multiplier, scaling, on, name=name, theta=theta,
+                      projection=tresca_ball(threshold))
+
+
+def Coulomb(gap, multiplier, scaling, on, friction, theta=1, name="contact"):
+    """Contact with Coulomb friction (coefficient F): as Tresca with the threshold
+    F [s_n]_+ (the discrete pressure); always a residual (no potential)."""
+    return Constraint(gap, multiplier, scaling, on, name=name, theta=theta,
+                      projection=coulomb_cone(friction))

@@ -51,14 +51,20 @@ def vertex_values(field, u):
 
 
 def vertex_multiplier(problem, values, mesh):
-    """Average the discrete multiplier of every constraint on `mesh` to its vertices."""
+    """Average the discrete multiplier of every constraint on `mesh` to its vertices
+    ('<name>_pressure'; a frictional constraint's tangential traction as
+    '<name>_tangential_traction')."""
     out = {}
     for c in problem.constraints:
         if c.on.mesh is not mesh:
             continue
         v = values[c.name]
-        per_element = (v["multiplier"] * v["W"]).sum(1) / np.maximum(v["W"].sum(1), 1e-300)
-        out[f"{c.name}_pressure"] = vertex_average(mesh, per_element, c.on.vertices)
+        lam = v["multiplier"] if v["multiplier"].ndim == 3 else v["multiplier"][..., None]
+        per_element = (lam * v["W"][..., None]).sum(1) / np.maximum(v["W"].sum(1), 1e-300)[:, None]
+        at = [vertex_average(mesh, per_element[:, i], c.on.vertices) for i in range(lam.shape[2])]
+        out[f"{c.name}_pressure"] = at[0]
+        if len(at) > 1:
+            out[f"{c.name}_tangential_traction"] = at[1] if len(at) == 2 else np.stack(at[1:], axis=1)
     return out
 
 

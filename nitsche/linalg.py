@@ -6,7 +6,9 @@ next ones (they differ only where the active set changed), and a new factorizati
 is made only when CG needs too many iterations.  `superlu`: SciPy's
 sparse LU, the fallback when scikit-sparse is not installed.  `amg`: conjugate
 gradients preconditioned by smoothed-aggregation algebraic multigrid (pyamg),
-for large and 3D problems.
+for large and 3D problems.  Non-symmetric Newton matrices (residual terms: Coulomb
+friction, theta != 1) take `superlu` (LU with partial pivoting) or `gmres` (GMRES
+preconditioned by an incomplete LU, for large 3D problems).
 """
 import os
 import warnings
@@ -238,6 +240,35 @@ class AMGCG:
         return x
 
 
+class GMRES:
+    """Restarted GMRES preconditioned by SuperLU's incomplete LU (spilu) of each matrix."""
+    name = "gmres"
+
+    def __init__(self, maxiter=2000, drop_tol=1e-4, fill_factor=10):
+        self.maxiter, self.drop_tol, self.fill_factor = maxiter, drop_tol, fill_factor
+        self.factorizations, self.iterations = 0, []
+
+    def stats(self):
+        return dict(factorizations=self.factorizations, gmres_iterations=self.iterations)
+
+    def solve(self, A, b, rtol=0.0):
+        A = A.tocsc()
+        try:
+            ilu = spla.spilu(A, drop_tol=self.drop_tol, fill_factor=self.fill_factor)
+        except RuntimeError as e:
+            raise IndefiniteHessian(f"singular Newton matrix ({e})")
+        self.factorizations += 1
+        count = [0]
+        x, info = spla.gmres(A, b, M=spla.LinearOperator(A.shape, ilu.solve), rtol=max(rtol, 1e-12),
+                             atol=0.0, restart=100, maxiter=self.maxiter,
+                             callback=lambda _: count.__setitem__(0, count[0] + 1),
+                             callback_type="pr_norm")
+        self.iterations.append(count[0])
+        if info != 0:
+            raise NotSolved(f"GMRES did not reach {rtol:.1e} in {count[0]} iterations")
+        return x
+
+
 def near_nullspace(problem):
     """Columns spanning the near-nullspace of the energy on the free dofs: for each
     vector Lagrange field its rigid-body modes (translations and rotations about the
@@ -278,16 +309,29 @@ def describe():
     return f"CHOLMOD ({blas}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')})"
 
 
-SOLVERS = {"cholmod": Cholmod, "superlu": SuperLU, "amg": AMGCG}
+SOLVERS = {"cholmod": Cholmod, "superlu": SuperLU, "amg": AMGCG, "gmres": GMRES}
+NONSYMMETRIC = ("superlu", "gmres")
 
 
-def make_solver(name="auto", n=0, dim=2):
-    """A solver by name; 'auto' is CHOLMOD (SuperLU without scikit-sparse), AMG-CG for large 3D.
+def make_solver(name="auto", n=0, dim=2, symmetric=True):
+    """A solver by name; 'auto' is CHOLMOD (SuperLU without scikit-sparse), AMG-CG for large 3D;
+    for a non-symmetric problem SuperLU's LU, GMRES-ILU for large 3D.
     CHOLMOD orders 2D problems by AMD alone: its default also tries METIS when the fill is
     large, which on 2D meshes of a million unknowns cost 4.5 s of analysis for a
     factorization no faster."""
     if not (isinstance(name, str) and (name == "auto" or name in SOLVERS)):
         raise ValueError(f"solver must be one of auto, {', '.join(SOLVERS)}, not {name!r}")
+    if not symmetric:
+        if name not in ("auto",) + NONSYMMETRIC:
+            raise ValueError(f"solver={name!r} needs a symmetric Newton matrix; this problem has "
+                             f"residual terms (Coulomb friction or theta != 1): use solver='auto', "
+                             f"{' or '.join(repr(s) for s in NONSYMMETRIC)}")
+        if name == "auto":
+            name = "gmres" if dim == 3 and n > AMG_THRESHOLD_3D else "superlu"
+        return SOLVERS[name]()
+    if name == "gmres":
+        raise ValueError("solver='gmres' is for non-symmetric problems (residual terms); this one "
+                         "minimizes an energy: use 'auto', 'cholmod', 'superlu' or 'amg'")
     if name == "auto":
         if dim == 3 and n > AMG_THRESHOLD_3D:
             name = "amg"

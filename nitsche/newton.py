@@ -1,4 +1,5 @@
-"""Semismooth Newton's method with a backtracking line search on J_h."""
+"""Semismooth Newton's method with a backtracking line search on J_h (on the residual norm
+for problems with residual terms: Coulomb friction, theta != 1)."""
 import numbers
 import time
 import warnings
@@ -18,6 +19,41 @@ SOLVE_FAILURE = 0.5     # a Newton step with |A dx + g| above this fraction of |
 UNBOUNDED = ("J_h looks unbounded below or singular (a field or rigid-body mode without support, "
              "a load no support balances, a non-convex energy, or alpha0 above its stability "
              "limit): add supports, balance the loads, start nearer a minimum (x0) or lower alpha0")
+
+
+def energy_search(problem, x, dx, E, res, slope):
+    """x + step dx, step = 1, 1/2, ... the first with Armijo's decrease of J_h (or, at the full
+    step, J_h flat to round-off and the residual smaller); None if 40 halvings fail."""
+    free, xn, step = problem.free, x.copy(), 1.0
+    for _ in range(40):
+        xn[free] = x[free] + step * dx
+        En = problem.energy(xn)
+        if np.isfinite(En) and En <= E + 1e-4 * step * slope + 1e-14 * abs(E):
+            return step, xn
+        if step == 1.0 and np.isfinite(En) and abs(En - E) <= ENERGY_ROUNDOFF * abs(E) \
+                and np.linalg.norm(problem.gradient(xn)[free]) < res:
+            return step, xn  # J_h is flat to round-off here (1/alpha ~ h^-4): judge the step by the residual
+        step *= 0.5
+    return None
+
+
+energy_search.merit = "J_h"
+
+
+def residual_search(problem, x, dx, E, res, slope):
+    """x + step dx, step = 1, 1/2, ... the first with |r| <= (1 - 1e-4 step) |r(x)| (r the
+    residual on the free dofs): (step, x + step dx), None if 40 halvings fail."""
+    free, xn, step = problem.free, x.copy(), 1.0
+    for _ in range(40):
+        xn[free] = x[free] + step * dx
+        rn = np.linalg.norm(problem.gradient(xn)[free])
+        if np.isfinite(rn) and rn <= (1 - 1e-4 * step) * res:
+            return step, xn
+        step *= 0.5
+    return None
+
+
+residual_search.merit = "the residual norm"
 
 
 def check_options(rtol, maxiter):
@@ -111,7 +147,9 @@ class Result:
 
 
 def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=None):
-    """Minimize J_h from x0 (fixed dofs are set to their values).
+    """Minimize J_h from x0 (fixed dofs are set to their values); for a problem with
+    residual terms (problem.symmetric False) solve r(x) = 0 instead: LU (or GMRES-ILU)
+    steps, backtracking until |r| falls by (1 - 1e-4 step), no minimum check.
 
     Stops when |grad J_h|_free <= rtol * ref (see residual_scale; x_ref = the initial
     guess with all free dofs zero), or when a full Newton step is below round-off.
@@ -130,7 +168,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     x = problem.initial(x0)
     problem.check_finite(x)  # a NaN gap, multiplier or scaling: an error that names it
     free = problem.free
-    lin = make_solver(solver, free.size, problem.dim)
+    lin = make_solver(solver, free.size, problem.dim, problem.symmetric)
     if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
         lin.prepare(problem)
     E0, g0 = problem.assembler.gradient(x)
@@ -180,7 +218,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
                       f"{solve_residual:.2g}): {UNBOUNDED}")
             break
         slope = float(g @ dx)
-        if not slope < 0:
+        if problem.symmetric and not slope < 0:
             reason = f"the Newton direction is not a descent direction at iteration {it}: {UNBOUNDED}"
             break
         if (len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
@@ -196,29 +234,21 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
             break
         t = time.perf_counter()
-        step, xn = 1.0, x.copy()
-        for _ in range(40):
-            xn[free] = x[free] + step * dx
-            En = problem.energy(xn)
-            if np.isfinite(En) and En <= E + 1e-4 * step * slope + 1e-14 * abs(E):
-                break
-            if step == 1.0 and np.isfinite(En) and abs(En - E) <= ENERGY_ROUNDOFF * abs(E) \
-                    and np.linalg.norm(problem.gradient(xn)[free]) < res:
-                break  # J_h is flat to round-off here (1/alpha ~ h^-4): judge the step by the residual
-            step *= 0.5
-        else:
-            reason = (f"the line search found no decrease of J_h at iteration {it} "
+        search = energy_search if problem.symmetric else residual_search
+        found = search(problem, x, dx, E, res, slope)
+        if found is None:
+            reason = (f"the line search found no decrease of {search.merit} at iteration {it} "
                       f"(Newton step {np.linalg.norm(dx):.3g}): {UNBOUNDED}")
             timings["line_search"] += time.perf_counter() - t
             break
         timings["line_search"] += time.perf_counter() - t
-        x = xn
+        step, x = found
         if step == 1.0 and np.linalg.norm(dx) <= 1e-13 * max(np.linalg.norm(x[free]), 1e-300):
             converged, reason = True, "full Newton step below round-off"
             it += 1
             residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
             break
-    if converged:
+    if converged and problem.symmetric:
         t = time.perf_counter()
         if not lin.is_positive_definite(A):
             converged, reason = False, (

@@ -46,14 +46,20 @@ def _vector_panel(fig, ax, f, d):
 
 
 def _multiplier_panel(fig, ax, name, v):
-    """lambda_N against the coordinate along a contact line, or coloured points on an area."""
+    """lambda_N against the coordinate along a contact line (and a frictional constraint's
+    tangential traction), or coloured points on an area."""
     xq = v["x"].reshape(-1, v["x"].shape[-1])
-    lam = v["multiplier"].ravel()
+    vector = v["multiplier"].ndim == 3
+    lam = (v["multiplier"][..., 0] if vector else v["multiplier"]).ravel()
     spread = np.ptp(xq, axis=0)
     if xq.shape[1] >= 2 and np.sort(spread)[-2] <= 1e-9 * max(spread.max(), 1e-300):
         axis = int(np.argmax(spread))  # a straight contact line: a graph over it
         order = np.argsort(xq[:, axis])
-        ax.plot(xq[order, axis], lam[order], ".-", ms=3)
+        ax.plot(xq[order, axis], lam[order], ".-", ms=3, label="normal")
+        if vector:
+            tangential = v["multiplier"][..., 1:].reshape(-1, v["multiplier"].shape[2] - 1)
+            ax.plot(xq[order, axis], tangential[order], ".-", ms=3, label="tangential")
+            ax.legend()
         ax.set_xlabel("xyz"[axis])
         ax.set_ylabel(r"$\lambda_N$")
         ax.grid(alpha=0.3)

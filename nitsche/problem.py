@@ -52,9 +52,13 @@ class Problem:
             raise ValueError(f"constraint names must be unique, got {cnames}: pass name=...")
         self._check_arguments()
         self.energy_terms = [Term(i.pointwise(), i.names, i.on, self.fields, self.offsets,
-                                  "the energy density") for i in self.integrals]
+                                  f"the {'residual' if i.residual else 'energy'} density",
+                                  residual=i.residual) for i in self.integrals]
         self.constraint_terms = [Term(c.pointwise(), c.names, c.on, self.fields, self.offsets,
-                                      f"constraint '{c.name}'", keep_points=True) for c in self.constraints]
+                                      f"constraint '{c.name}'", keep_points=True, residual=c.residual)
+                                 for c in self.constraints]
+        # J_h has a potential (Cholesky, energy line search) unless a term is a residual
+        self.symmetric = not any(t.residual for t in self.energy_terms + self.constraint_terms)
         self._resolve_alpha0(dict(alpha0_limits or {}))
         self.value_terms = [t.with_pointwise(c.values())
                             for c, t in zip(self.constraints, self.constraint_terms)]
@@ -96,7 +100,8 @@ class Problem:
             alpha0 = c.scaling.per_element(limit, centroids(t), t.h)
             self.limits[c.name], self.alpha0[c.name] = limit, alpha0
             t.alpha0 = alpha0
-            over = (alpha0 >= limit) & (limit > 0)  # (limit 0: no limit, warned above)
+            # (limit 0: no limit, warned above; theta = -1 is stable for every alpha0)
+            over = (alpha0 >= limit) & (limit > 0) & (c.theta != -1)
             if over.any():
                 warnings.warn(f"constraint '{c.name}': alpha0 = {alpha0[over].max():g} exceeds the "
                               f"stability limit {limit[over].min():.4g} on {over.sum()} of {t.nel} "
@@ -145,7 +150,7 @@ class Problem:
         constraint's own may have released its tabulations)."""
         try:
             term = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
-                        f"the multiplier of constraint '{c.name}'")
+                        f"the multiplier of constraint '{c.name}'", vector=True)
         except ConstantDensity:  # a given multiplier lambda = q: B = 0
             return None
         if alpha0 is not None:
@@ -209,6 +214,20 @@ class Problem:
         """{field name: its dofs}."""
         return {f.name: x[self.offsets[f.name]: self.offsets[f.name] + f.ndofs] for f in self.fields}
 
+    def set_values(self, name, values):
+        """Prescribe new values on the fixed dofs of field `name` (a load step, or the
+        previous step's solution in a history field): `values` for its fixed dofs, or a
+        full dof vector of the field (its fixed entries are taken)."""
+        f = self.by_name[name]
+        values = np.asarray(values, dtype=float)
+        if values.shape == (f.ndofs,):
+            values = values[f.fixed_dofs]
+        if values.shape != f.fixed_dofs.shape:
+            raise ValueError(f"set_values('{name}', values): give {f.fixed_dofs.size} values (its "
+                             f"fixed dofs) or {f.ndofs} (all its dofs), not shape {values.shape}")
+        start = sum(g.fixed_dofs.size for g in self.fields[:self.fields.index(f)])
+        self.fixed_values[start:start + values.size] = values
+
     def join(self, parts):
         return np.concatenate([np.asarray(parts[f.name], dtype=float) for f in self.fields])
 
@@ -244,7 +263,8 @@ class Problem:
                                                                      minlength=self.free.size))])
 
     def newton_system(self, x):
-        """J_h(x), its gradient on the free dofs and the free-free block of the Hessian."""
+        """J_h(x), its gradient on the free dofs and the free-free block of the Hessian (for a
+        problem with residual terms: the energy terms' J, the residual and its Jacobian)."""
         E, g, data = self.assembler.evaluate(x)
         n = self.free.size
         A = sp.csr_matrix((data[self._sel], self._ff_indices, self._ff_indptr), shape=(n, n))
@@ -257,15 +277,22 @@ class Problem:
 
     # -- constraint report ---------------------------------------------------------
     def constraint_values(self, x):
-        """Per constraint: g, lambda, alpha, the discrete multiplier lambda_N and the
-        weights W at its quadrature points (arrays of shape (elements, points)).
+        """Per constraint: g, lambda, alpha, the discrete multiplier lambda_N = P(s),
+        s = lambda - g/alpha, and the weights W at its quadrature points (arrays of shape
+        (elements, points); for a frictional constraint g, lam and multiplier have a last
+        axis (normal, tangential...) and `state` is 0 separation, 1 stick, 2 slip).
         ValueError when g, lambda or alpha is not finite (see check_finite)."""
         out = {}
-        for c, t, (g, lam, alpha) in self._finite_values(x):
-            s = lam - g / alpha
-            lam_n = np.maximum(s, 0) if c.inequality else s
-            out[c.name] = dict(g=g, lam=lam, alpha=alpha, multiplier=lam_n,
-                               W=t.W[:t.nel], x=t.x[:t.nel], active=s >= 0 if c.inequality else None)
+        for c, t, (g, lam, alpha, P) in self._finite_values(x):
+            a = alpha[..., None] if np.ndim(g) == 3 else alpha
+            s = lam - g / a
+            s_n = s[..., 0] if np.ndim(s) == 3 else s
+            out[c.name] = dict(g=g, lam=lam, alpha=alpha, multiplier=P, W=t.W[:t.nel],
+                               x=t.x[:t.nel], active=s_n >= 0 if c.inequality else None)
+            if c.projection.frictional:
+                slipping = np.linalg.norm(s[..., 1:] - P[..., 1:], axis=-1) \
+                    > 1e-10 * np.linalg.norm(s[..., 1:], axis=-1)
+                out[c.name]["state"] = np.where(s_n > 0, np.where(slipping, 2, 1), 0)
         return out
 
     def check_finite(self, x):
@@ -290,12 +317,12 @@ class Problem:
             values = t.run("values", x)
             rows.append((c, t, values))
             for what, v in zip(INGREDIENTS, values):
-                v = np.broadcast_to(v, (t.nel, t.nq))
+                v = np.broadcast_to(v, (t.nel, t.nq) + np.shape(v)[2:])
                 wrong = ~np.isfinite(v)
                 if wrong.any():
                     kind = "NaN" if np.isnan(v[wrong]).all() else \
                         "infinite" if np.isinf(v[wrong]).all() else "NaN or infinite"
-                    e, q = np.argwhere(wrong)[0]
+                    e, q = np.argwhere(wrong)[0][:2]
                     at = ", ".join(f"{p:.4g}" for p in t.x[e, q])
                     bad.append(f"the {what} of constraint '{c.name}' is {kind} at {wrong.sum()} "
                                f"of {wrong.size} quadrature points, e.g. x = ({at})")
@@ -314,12 +341,12 @@ class Problem:
                            f"{t.label} is NaN (outside the domain of a log, sqrt or division?)")
         if bad:
             return "; ".join(bad)
-        for (c, _, (g, lam, alpha)), term in zip(rows, self.constraint_terms):
+        for (c, _, (g, lam, alpha, _)), term in zip(rows, self.constraint_terms):
             E, grad = self.assembler.gradient(x, [term])
             if np.isfinite(E) and np.all(np.isfinite(grad)):
                 continue
             with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
-                ratio = np.max(np.abs(g / alpha))
+                ratio = np.max(np.abs(g / (alpha[..., None] if np.ndim(g) == 3 else alpha)))
             lam_max = np.max(np.abs(lam))
             bad.append(f"constraint '{c.name}': alpha (g/alpha)^2 overflows (alpha as small as "
                        f"{np.min(alpha):.1e}): alpha0 too small" if ratio >= lam_max else
@@ -347,19 +374,21 @@ class Problem:
         rep, values, parts = {}, self.constraint_values(x), self.split(x)
         for c in self.constraints:
             v = values[c.name]
+            vector = np.ndim(v["g"]) == 3
+            g, lam, lam_n = (v[k][..., 0] if vector else v[k] for k in ("g", "lam", "multiplier"))
             if c.inequality:
-                active = v["multiplier"] > 0
-                violation = np.maximum(-v["g"], 0.0)
+                active = lam_n > 0
+                violation = np.maximum(-g, 0.0)
             else:
-                active = np.zeros_like(v["g"], bool)
-                violation = np.abs(v["g"])
+                active = np.zeros_like(g, bool)
+                violation = np.abs(g)
             worst = np.unravel_index(np.argmax(violation), violation.shape)
             viol = float(violation[worst])
             size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
                        default=0.0)
             a, limits = self.alpha0[c.name], self.limits[c.name]
             limit = min(0.5, 50 * float(np.broadcast_to(a, violation.shape[:1])[worst[0]])) * size
-            consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * v["lam"], violation.shape)[worst]))
+            consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * lam, violation.shape)[worst]))
             rep[c.name] = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
                                alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
                                alpha0_limit_min=float(limits.min()),
@@ -368,10 +397,18 @@ class Problem:
                                active_count=int(active.sum()),
                                contact_measure=float((v["W"] * active).sum()),
                                max_violation=viol,
-                               peak_multiplier=float(np.max(v["multiplier"])),
-                               total_multiplier=float((v["W"] * v["multiplier"]).sum()),
+                               peak_multiplier=float(np.max(lam_n)),
+                               total_multiplier=float((v["W"] * lam_n).sum()),
                                violation_limit=limit,
                                infeasible=bool(viol > limit and viol > consistency))
+            if c.projection.frictional:
+                traction = v["multiplier"][..., 1:]
+                rep[c.name].update(
+                    theta=c.theta, stick_measure=float((v["W"] * (v["state"] == 1)).sum()),
+                    slip_measure=float((v["W"] * (v["state"] == 2)).sum()),
+                    separation_measure=float((v["W"] * (v["state"] == 0)).sum()),
+                    peak_tangential_traction=float(np.linalg.norm(traction, axis=-1).max()),
+                    total_tangential_traction=(v["W"][..., None] * traction).sum((0, 1)).tolist())
         return rep
 
 
@@ -395,10 +432,20 @@ def cell_hessians(term, x, cells):
 def multiplier_jacobian(term, c, x):
     """sqrt(W alpha) D lambda at each point of each element of a term of
     c.scaled_multiplier(), on the dofs of the multiplier's fields: (elements, points, dofs)
-    and the global dofs (elements, dofs)."""
+    and the global dofs (elements, dofs); the components of a vector multiplier count as
+    further points (the Gram matrix sums over them)."""
     mine = np.concatenate([np.full(d.shape[1], f.name in c.multiplier_names)
                            for d, f in zip(term.field_dofs, term.fields)])
-    return term.run("jacobian", x)[0][:, :, mine], term.global_dofs[:, mine]
+    shape = term.output_shape()
+    parts = [term] if shape == () else \
+        [term.with_pointwise(component(term.pointwise, i)) for i in range(int(np.prod(shape)))]
+    G = np.concatenate([p.run("jacobian", x)[0] for p in parts], axis=1)
+    return G[:, :, mine], term.global_dofs[:, mine]
+
+
+def component(pointwise, i):
+    """The i-th component of a vector density."""
+    return lambda args: pointwise(args).ravel()[i]
 
 
 def centroids(term):

@@ -39,15 +39,16 @@ class StudyFailed(NotConverged):
 FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
 
 
-def nested(make_problem, levels, **newton_options):
+def nested(make_problem, levels, solve=None, **newton_options):
     """Nested iteration for any problem: for each k in `levels`, minimize J_h of
-    make_problem(k) from the previous level's solution prolongated to it (I u_{k-1}).
+    make_problem(k) from the previous level's solution prolongated to it (I u_{k-1}), by
+    solve(problem, x0, **newton_options) (default Problem.minimize; a case's load path).
     Yields (k, problem, result); stops after a level that does not converge."""
-    prev = None
+    prev, solve = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o))
     for k in levels:
         problem = make_problem(k)
-        result = problem.minimize(prolongate(prev[0], prev[1].x, problem) if prev else None,
-                                  **newton_options)
+        result = solve(problem, prolongate(prev[0], prev[1].x, problem) if prev else None,
+                       **newton_options)
         yield k, problem, result
         if not result.converged:
             return
@@ -64,7 +65,8 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     prev, its = None, []
     try:
         for k, problem, result in nested(lambda k: case.problem(k, degree, p),
-                                         range(first, level + 1), **(newton_options or {})):
+                                         range(first, level + 1), case.solve,
+                                         **(newton_options or {})):
             its.append(result.iterations)
             if progress:
                 print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} "
@@ -109,7 +111,7 @@ def run_study(case, levels, degree, p, start=0, progress=True, newton_options=No
                 print(f"[{i + 1}/{levels}] level {level}: {problem.free.size} unknowns ...",
                       end="", file=out, flush=True)
             x0 = prolongate(*prev, problem) if prev else None
-            result = problem.minimize(x0, **(newton_options or {}))
+            result = case.solve(problem, x0, **(newton_options or {}))
         except FAILURES as e:
             if not rows:
                 raise
