@@ -103,5 +103,5 @@ def study(case, levels, degree, p, out, options, start=0):
 
 def written(paths):
     """The one-line summary of the files a command wrote."""
-    names = sorted(paths, key=lambda q: not q.endswith(("result.json", "study.json")))
+    names = sorted(paths, key=lambda q: os.path.basename(q) not in ("result.json", "study.json"))
     return "wrote " + ", ".join(os.path.normpath(q) for q in names)

@@ -2,56 +2,17 @@
 import numpy as np
 import jax.numpy as jnp
 import pytest
-from skfem import MeshTri, ElementTriP1, ElementVector
 
 import nitsche as ni
-from nitsche.ops import dot, tangent, sym_grad
+from nitsche.cases import block_friction as cases
+from nitsche.cases.block_friction import E, energy, gap, multiplier
 
-E, NU = 1.0, 0.3
-MU, LAM = E / (2 * (1 + NU)), E * NU / ((1 + NU) * (1 - 2 * NU))
 ALPHA0 = 0.05
 
 
-def sigma(u):
-    e = sym_grad(u)
-    return 2 * MU * e + LAM * (e[0, 0] + e[1, 1]) * jnp.eye(2)
-
-
-def energy(u):
-    e = sym_grad(u)
-    tr = e[0, 0] + e[1, 1]
-    return MU * jnp.sum(e * e) + 0.5 * LAM * tr * tr
-
-
-def g0(x):
-    return 0.02 * (x[0] - 0.4)
-
-
-def gap(u, u_old, n, x):
-    """(normal gap to the rigid ground y = 0, slip increment of the ground relative to u)."""
-    return jnp.stack([-dot(u, n) + g0(x), -dot(u - u_old, tangent(n))])
-
-
-def multiplier(u, n):
-    traction = dot(sigma(u), n)
-    return -jnp.stack([dot(n, traction), dot(tangent(n), traction)])
-
-
-def block(kind, theta, top=(0.02, -0.03), level=2, alpha0=ALPHA0, threshold=0.01):
-    """An elastic unit square on rigid ground, its top moved by `top`."""
-    m = MeshTri.init_symmetric().refined(level)
-    u = ni.Field("u", m, ElementVector(ElementTriP1()), fixed=lambda x: x[1] > 1 - 1e-12,
-                 value=lambda x: np.stack([top[0] + 0 * x[0], top[1] + 0 * x[0]]))
-    bottom = ni.facets(u, lambda x: x[1] < 1e-12)
-    scaling = ni.Scaling(alpha0, 1, E)
-    if kind == "tresca":
-        c = ni.Tresca(gap, multiplier, scaling, bottom, threshold=threshold, theta=theta)
-    elif kind == "coulomb":
-        c = ni.Coulomb(gap, multiplier, scaling, bottom, friction=0.3, theta=theta)
-    else:
-        c = ni.Inequality(lambda u, n, x: -dot(u, n) + g0(x), lambda u, n: -dot(n, dot(sigma(u), n)),
-                          scaling, bottom, theta=theta)
-    return ni.Problem([u, ni.history(u)], energy, [c])
+def block(law, theta, top=(0.02, -0.03), level=2, alpha0=ALPHA0, threshold=0.01):
+    """The block-friction case's problem (an elastic unit square on rigid ground)."""
+    return cases.block(law, theta, top, level, alpha0, threshold)
 
 
 def random_state(problem, seed=0):
@@ -183,3 +144,21 @@ def test_vector_multiplier_stability_limits():
     friction, frictionless = block("coulomb", -1), block("inequality", 1)
     assert friction.stability_limits()["contact"] <= frictionless.stability_limits()["contact"]
     assert 0 < friction.alpha0_limits["contact"] <= frictionless.alpha0_limits["contact"]
+
+
+def test_the_theta_study_is_a_figure_of_the_block_friction_case(tmp_path):
+    """`nitsche run block-friction --set theta_study=true` (the paper index's entry) writes the
+    sweep: theta = -1 converges for every alpha0 and stays accurate; theta = 1 fails or
+    degrades beyond its stability limit (frictionless)."""
+    import json
+    from nitsche.cli import main
+    assert main(["run", "block-friction", "--level", "1", "--set", "theta_study=true",
+                 "--out", str(tmp_path)]) == 0
+    rows = json.loads((tmp_path / "theta_study.json").read_text())["rows"]
+    assert (tmp_path / "theta_study.png").stat().st_size > 10000
+    assert len(rows) == 2 * 3 * 9
+    minus = [r for r in rows if r["theta"] == -1]
+    assert all(r["converged"] for r in minus)
+    assert max(r["error"] for r in minus) < 3 * min(r["error"] for r in minus)
+    plus = {r["alpha0"]: r for r in rows if r["theta"] == 1 and r["law"] == "inequality"}
+    assert not plus[400]["converged"] or plus[400]["error"] > 2 * plus[1 / 400]["error"]
