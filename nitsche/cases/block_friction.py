@@ -133,11 +133,11 @@ def plot_theta_study(rows, path, title=""):
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for ax, law in zip(axes, STUDY_LAWS):
-        for theta, style in zip(STUDY_THETAS, ("o-", "s--", "^:")):
+        for theta, style, size in zip(STUDY_THETAS, ("o-", "s--", "^:"), (10, 7, 4)):
             pts = [(r["alpha0"], r["error"]) for r in rows if r["law"] == law and r["theta"] == theta
                    and r["error"] is not None]
-            if pts:
-                ax.loglog(*zip(*pts), style, label=f"theta = {theta}")
+            if pts:  # hollow markers of decreasing size: coinciding curves stay visible
+                ax.loglog(*zip(*pts), style, ms=size, mfc="none", label=f"theta = {theta}")
         ax.set_xlabel("alpha0")
         ax.set_title("frictionless" if law == "inequality" else "Coulomb, F = 0.3")
         ax.grid(alpha=0.3, which="both")
