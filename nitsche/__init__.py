@@ -28,6 +28,7 @@ from .problem import Problem, StabilityWarning  # noqa: E402
 from .newton import Result, NotConverged, FeasibilityWarning  # noqa: E402
 from .jets import DerivativeError  # noqa: E402
 from .study import nested, prolongate  # noqa: E402
+from .path import path, Path  # noqa: E402
 from . import ops  # noqa: E402
 
 
@@ -39,4 +40,4 @@ def minimize(energy, fields, constraints=(), x0=None, **options):
 __all__ = ["Field", "history", "cells", "facets", "interface", "Scaling", "Integral", "Residual",
            "Equality", "Inequality", "Penalty", "Tresca", "Coulomb", "Constraint", "Problem", "Result",
            "NotConverged", "StabilityWarning", "FeasibilityWarning",
-           "DerivativeError", "ops", "minimize", "nested", "prolongate"]
+           "DerivativeError", "ops", "minimize", "nested", "prolongate", "path", "Path"]

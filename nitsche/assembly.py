@@ -101,12 +101,33 @@ def _pad(a, n):
     return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
 
 
-def check_arguments(names, fields, label):
-    """Every argument of a density names a field or x, n, h: otherwise a clear error."""
-    unknown = [k for k in names if k not in fields and k not in RESERVED]
+def check_arguments(names, fields, label, parameters=()):
+    """Every argument of a density names a field, a parameter or x, n, h: otherwise a clear error."""
+    unknown = [k for k in names if k not in fields and k not in RESERVED and k not in parameters]
     if unknown:
         raise ValueError(f"{label}: unknown argument(s) {unknown}; a density takes fields "
-                         f"{sorted(fields)} and x (point), n (normal), h (mesh size)")
+                         f"{sorted(fields)}, parameters {sorted(parameters)} and x (point), "
+                         "n (normal), h (mesh size)")
+
+
+class Parameters:
+    """Run-time parameters of a problem: names and one array of values, shared by its
+    terms and changed in place, so that the compiled kernels take them as data."""
+
+    def __init__(self, values=None):
+        values = dict(values or {})
+        for k, v in values.items():
+            if not (isinstance(k, str) and k.isidentifier()) or k in RESERVED:
+                raise ValueError(f"parameter name {k!r} must be a Python identifier other than x, n, h")
+        self.names = tuple(values)
+        self.values = np.array([float(v) for v in values.values()], dtype=float)
+
+    def __contains__(self, name):
+        return name in self.names
+
+    def index(self, names):
+        """Positions of the given parameter names among all."""
+        return np.array([self.names.index(k) for k in names], dtype=np.int64)
 
 
 class ConstantDensity(ValueError):
@@ -117,14 +138,18 @@ class Term:
     """A pointwise density integrated on a measure, ready to assemble."""
 
     def __init__(self, pointwise, names, measure, fields, offsets, label, keep_points=False,
-                 residual=False, vector=False):
+                 residual=False, vector=False, parameters=None):
         """keep_points: store the quadrature points x even if the density does not use
         them (constraints keep them for their reports); residual: the density returns the
         pair (c, q) of a residual term (module docstring); vector: it may return an array
-        (e.g. a vector multiplier, for its Jacobian), not an energy."""
+        (e.g. a vector multiplier, for its Jacobian), not an energy; parameters: the
+        problem's Parameters (those the density names enter its kernels as data)."""
         self.residual, self.vector = residual, vector
         by_name = {f.name: f for f in fields}
-        check_arguments(names, by_name, label)
+        self.parameters = parameters or Parameters()
+        check_arguments(names, by_name, label, self.parameters.names)
+        self.parameter_names = tuple(k for k in names if k in self.parameters)
+        self.parameter_index = self.parameters.index(self.parameter_names)
         if "n" in names and measure.kind == "cells":
             raise ValueError(f"{label} uses the normal n but is integrated over cells; "
                              "use a facet measure")
@@ -173,8 +198,8 @@ class Term:
         used = {f.name: set() for f in fs}
         shapes = {f.name: dict(zip(f.orders, self.measure.shapes(f, f.orders))) for f in fs}
 
-        def trace(zs, x, n, h, a):
-            args = {"x": x, "n": n, "h": h, ALPHA0: a}
+        def trace(zs, x, n, h, a, t):
+            args = {"x": x, "n": n, "h": h, ALPHA0: a, **dict(zip(self.parameter_names, t))}
             for f in fs:
                 args[f.name] = Jet(f.name, zs[f.name], f.orders, used[f.name])
             return self.pointwise(args)
@@ -183,7 +208,8 @@ class Term:
               for f in fs}
         vec = jax.ShapeDtypeStruct((self.dim,), jnp.float64)
         scalar = jax.ShapeDtypeStruct((), jnp.float64)
-        out = jax.eval_shape(trace, zs, vec, vec, scalar, scalar)
+        out = jax.eval_shape(trace, zs, vec, vec, scalar, scalar,
+                             jax.ShapeDtypeStruct((len(self.parameter_names),), jnp.float64))
         if self.residual:
             if not (isinstance(out, tuple) and len(out) == 2 and out[0].shape == out[1].shape):
                 raise ValueError(f"{self.label} must return a pair (c, q) of arrays of one shape")
@@ -213,7 +239,7 @@ class Term:
         """The shape of the density's value at a point."""
         m = sum(mf for mf, _ in self.sizes)
         vec = jnp.zeros(self.dim)
-        return jax.eval_shape(self._point_fn(), jnp.zeros(m), vec, vec, 0.1, 1.0).shape
+        return jax.eval_shape(self._point_fn(), jnp.zeros(m), vec, vec, 0.1, 1.0, self._theta0()).shape
 
     @property
     def sizes(self):
@@ -225,37 +251,49 @@ class Term:
         """Per field: the tabulation is the same on every element (stored once)."""
         return tuple(T.shape[0] == 1 for T in self.T)
 
+    def _theta0(self):
+        """The parameters the density reads, at their current values (for tracing)."""
+        return jnp.asarray(self.parameters.values[self.parameter_index])
+
+    def parameter_data(self, n):
+        """The values of the parameters the density reads, one row per element of a chunk."""
+        return np.broadcast_to(self.parameters.values[self.parameter_index], (n, self.parameter_index.size))
+
     def _point_fn(self, by_field=False):
-        """The density w(z, x, n, h, a) of the kept jet components z of all fields (one vector),
-        or, by_field, w(z_1, ..., z_k, x, n, h, a) of one vector per field (a: the element's
-        alpha0)."""
-        layout, pointwise, kept = self.layout, self.pointwise, self.kept
+        """The density w(z, x, n, h, a, t) of the kept jet components z of all fields (one
+        vector), or, by_field, w(z_1, ..., z_k, x, n, h, a, t) of one vector per field (a: the
+        element's alpha0, t: the values of the parameters it reads)."""
+        layout, pointwise, kept, pnames = self.layout, self.pointwise, self.kept, self.parameter_names
         offsets = np.cumsum([0] + [m for m, _ in self.sizes])
 
         def of_fields(*a):
-            zs, (x, n, h, alpha0) = a[:len(layout)], a[len(layout):]
+            zs, (x, n, h, alpha0, t) = a[:len(layout)], a[len(layout):]
             args = {"x": x, "n": n, "h": h, ALPHA0: alpha0}
+            args.update((k, t[i]) for i, k in enumerate(pnames))
             for (name, parts, provided), z, kf in zip(layout, zs, kept):
                 full = jnp.zeros(sum(p[3] for p in parts)).at[np.array(kf)].set(z)
                 args[name] = Jet(name, {o: full[s: s + size].reshape(shape)
                                         for o, shape, s, size in parts}, provided)
             return pointwise(args)
 
-        def f(z, x, n, h, a):
-            return of_fields(*[z[i:j] for i, j in zip(offsets[:-1], offsets[1:])], x, n, h, a)
+        def f(z, x, n, h, a, t):
+            return of_fields(*[z[i:j] for i, j in zip(offsets[:-1], offsets[1:])], x, n, h, a, t)
         return of_fields if by_field else f
 
     @property
     def is_quadratic(self):
-        """True when d2w/dz2 does not depend on z (found from the computation graph):
-        then J restricted to this term is a quadratic form, assembled once."""
+        """True when d2w/dz2 does not depend on z (found from the computation graph) and
+        the density reads no parameter: then J restricted to this term is a quadratic form,
+        assembled once."""
+        if self.parameter_names:
+            return False
         if not hasattr(self, "_quadratic"):
             key = ("quadratic", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
             if key not in _COMPILED:
                 m = sum(mf for mf, _ in self.sizes)
                 vec = jnp.zeros(self.dim)
                 second = jax.jacfwd(derivative(self._point_fn(), self.residual))
-                jaxpr = jax.make_jaxpr(second)(jnp.zeros(m), vec, vec, 0.1, 1.0)
+                jaxpr = jax.make_jaxpr(second)(jnp.zeros(m), vec, vec, 0.1, 1.0, self._theta0())
                 _COMPILED[key] = not _depends_on_first_input(jaxpr.jaxpr)
             self._quadratic = _COMPILED[key]
         return self._quadratic
@@ -268,11 +306,13 @@ class Term:
         if self.residual:
             return tuple((True,) * len(self.sizes) for _ in self.sizes)
         if not hasattr(self, "_coupling"):
-            key = ("coupling", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
+            key = ("coupling", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept),
+                   self.parameter_names)
             if key not in _COMPILED:
                 sizes = [mf for mf, _ in self.sizes]
                 nf = len(sizes)
-                args = [jnp.zeros(mf) for mf in sizes] + [jnp.zeros(self.dim), jnp.zeros(self.dim), 0.1, 1.0]
+                args = [jnp.zeros(mf) for mf in sizes] + [jnp.zeros(self.dim), jnp.zeros(self.dim), 0.1, 1.0,
+                                                          self._theta0()]
                 coupled = []
                 for i in range(nf):
                     jaxpr = jax.make_jaxpr(jax.grad(self._point_fn(by_field=True), argnums=i))(*args).jaxpr
@@ -297,7 +337,7 @@ class Term:
             return self._kernels[kind]
         key = (kind, self.residual, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
                tuple(T.shape[1:] for T in self.T), self.shared,
-               self.dim, self.has_normal)
+               self.dim, self.has_normal, self.parameter_names)
         if key not in _COMPILED:
             coupling = self.coupling if kind == "full" else None
             fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq, coupling, self.residual)
@@ -305,7 +345,7 @@ class Term:
                     for T, shared in zip(self.T, self.shared)]
             args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
             args += [jax.ShapeDtypeStruct((self.chunk,) + a.shape[1:], jnp.float64)
-                     for a in (self.W, self.x, self.n, self.h, self.alpha0)]
+                     for a in (self.W, self.x, self.n, self.h, self.alpha0, self.parameter_data(1))]
             t = time.perf_counter()
             _COMPILED[key] = jax.jit(fn).lower(*args).compile()
             compile_seconds[0] += time.perf_counter() - t
@@ -322,7 +362,7 @@ class Term:
             sl = slice(s, s + self.chunk) if elements is None else elements[s: s + self.chunk]
             Ts = [T if shared else _pad(T[sl], self.chunk) for T, shared in zip(self.T, self.shared)]
             rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            outs.append(kern(*Ts, *rest))
+            outs.append(kern(*Ts, *rest, self.parameter_data(self.chunk)))
         return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
 
 
@@ -376,9 +416,9 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
     def jets(Ts, us):
         return jnp.concatenate([jnp.einsum("eqck,ek->eqc", T, u) for T, u in zip(Ts, us)], axis=-1)
 
-    def points(W, x, n, h, a):
+    def points(W, x, n, h, a, t):
         return (x.reshape(chunk * nq, -1), n.reshape(chunk * nq, -1), jnp.repeat(h, nq),
-                jnp.repeat(a, nq))
+                jnp.repeat(a, nq), jnp.repeat(t, nq, axis=0))
 
     def contract_gradient(Ts, Wdw):
         """grad_e = sum_q W T^T dw/dz, field by field."""
@@ -398,22 +438,22 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
                                 for i in range(nf)], axis=1)
 
     def energy(*a):
-        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        w = jax.vmap(value)(z, *points(W, x, n, h, alpha0)).reshape(chunk, nq)
+        w = jax.vmap(value)(z, *points(W, x, n, h, alpha0, t)).reshape(chunk, nq)
         return (jnp.sum(W * w, axis=1),)
 
     def gradient(*a):
-        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        w, dw = jax.vmap(value_and_first)(z, *points(W, x, n, h, alpha0))
+        w, dw = jax.vmap(value_and_first)(z, *points(W, x, n, h, alpha0, t))
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
         return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw)
 
     def full(*a):
-        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        px = points(W, x, n, h, alpha0)
+        px = points(W, x, n, h, alpha0, t)
         w, dw = jax.vmap(value_and_first)(z, *px)
         d2w = jax.vmap(jax.jacfwd(first))(z, *px)
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
@@ -423,17 +463,17 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
 
     def jacobian(*a):
         """sqrt(W) dw/dz T at every point (w: e.g. a multiplier), shape (chunk, nq, dofs)."""
-        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        dw = jax.vmap(jax.grad(point_fn))(z, *points(W, x, n, h, alpha0))
+        dw = jax.vmap(jax.grad(point_fn))(z, *points(W, x, n, h, alpha0, t))
         rdw = jnp.sqrt(W)[..., None] * dw.reshape(chunk, nq, m)
         return (jnp.concatenate([jnp.einsum("eqc,eqck->eqk", rdw[..., i:j], T)
                                  for T, i, j in zip(Ts, offsets[:-1], offsets[1:])], axis=2),)
 
     def values(*a):
-        Ts, us, (W, x, n, h, alpha0) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
         z = jets(Ts, us).reshape(chunk * nq, m)
-        out = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0))
+        out = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0, t))
         return tuple(o.reshape((chunk, nq) + o.shape[1:]) for o in out)
 
     return {"energy": energy, "gradient": gradient, "full": full, "jacobian": jacobian,

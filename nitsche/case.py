@@ -17,6 +17,10 @@ and optionally
     solve(problem, p, x0, **newton_options) -> Result: a load path (e.g. a normal step,
                              then tangential steps; Problem.set_values) instead of
                              problem.minimize(x0, **newton_options)
+    path(problem, p)         -> the keyword arguments of nitsche.path (times, set_step, ...):
+                             a load path solved step by step; `run` writes its steps
+                             (result.json `steps`, solution_NNNN.vtu, solution.pvd, a
+                             reaction-time plot)
     RANGES                   {name: Interval or OneOf}: the physical range of a parameter
     check(p)                 raises ParameterError for combinations RANGES cannot say
                              (e.g. D1 <= D2)
@@ -197,8 +201,20 @@ class Case:
             self._limits[key] = self.problem(level, degree, p).stability_limits()
         return dict(self._limits[key])
 
+    @property
+    def has_path(self):
+        return callable(getattr(self.module, "path", None))
+
     def solve(self, problem, x0=None, **newton_options):
-        """The case's load path (its solve hook), or Newton's method from x0."""
+        """The case's load path (its path hook: nitsche.path, kept as problem.path, its last
+        attempted step returned; or its solve hook), or Newton's method from x0."""
+        if self.has_path:
+            from .path import path
+            problem.path = path(problem, **self.module.path(problem, problem.setup.p), **newton_options)
+            if problem.path.result is None:
+                raise ValueError(f"case '{self.name}': the load path failed at its first step: "
+                                 f"{problem.path.reason}")
+            return problem.path.result
         hook = getattr(self.module, "solve", None)
         return hook(problem, problem.setup.p, x0, **newton_options) if hook \
             else problem.minimize(x0, **newton_options)

@@ -221,5 +221,7 @@ def history(field, name=None):
     FIELD_old), on the same mesh and element with all of its dofs prescribed; a density
     names it like any field (e.g. the slip increment (u - u_old) . t of a friction gap) and
     Problem.set_values(name, x_field) moves it to the next step."""
-    return Field(name or f"{field.name}_old", field.mesh, field.element,
-                 fixed=np.arange(field.ndofs), intorder=field.intorder)
+    old = Field(name or f"{field.name}_old", field.mesh, field.element,
+                fixed=np.arange(field.ndofs), intorder=field.intorder)
+    old.history_of = field.name  # nitsche.path moves it to each step's start
+    return old

@@ -56,6 +56,17 @@ def residual_search(problem, x, dx, E, res, slope):
 residual_search.merit = "the residual norm"
 
 
+def lifted(problem, x0, plain, lin):
+    """problem.lift(x0) with the Newton solver, or `plain` (x0 with the prescribed values
+    set) where the linearization at x0 cannot be solved or the lifted start is not finite."""
+    try:
+        with np.errstate(all="ignore"):
+            x = problem.lift(x0, lambda A, b: lin.solve(A, b, rtol=1e-8))
+    except RuntimeError:  # IndefiniteHessian, NotSolved, a singular factor
+        return plain
+    return x if np.all(np.isfinite(x)) and np.isfinite(problem.energy(x)) else plain
+
+
 def check_options(rtol, maxiter):
     """maxiter an integer >= 0, rtol in (0, 1): a ValueError naming the option otherwise."""
     if isinstance(maxiter, bool) or not isinstance(maxiter, numbers.Integral) or maxiter < 0:
@@ -146,8 +157,10 @@ class Result:
         return "\n".join(lines)
 
 
-def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=None):
-    """Minimize J_h from x0 (fixed dofs are set to their values); for a problem with
+def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=None, lift=True):
+    """Minimize J_h from x0 (fixed dofs are set to their values; lift: where x0's differ
+    from the prescribed ones, the increment is carried into the interior first, see
+    Problem.lift, unless that start is not finite); for a problem with
     residual terms (problem.symmetric False) solve r(x) = 0 instead: LU (or GMRES-ILU)
     steps, backtracking until |r| falls by (1 - 1e-4 step), no minimum check.
 
@@ -165,12 +178,16 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     t_start = time.perf_counter()
     c0 = assembly.compile_seconds[0]
     timings = {"assembly": 0.0, "solve": 0.0, "line_search": 0.0, "minimum_check": 0.0}
-    x = problem.initial(x0)
-    problem.check_finite(x)  # a NaN gap, multiplier or scaling: an error that names it
     free = problem.free
     lin = make_solver(solver, free.size, problem.dim, problem.symmetric)
     if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
         lin.prepare(problem)
+    x = problem.initial(x0)
+    if lift and x0 is not None and problem.moved(x0) is not None:
+        t = time.perf_counter()
+        x = lifted(problem, x0, x, lin)
+        timings["lift"] = time.perf_counter() - t
+    problem.check_finite(x)  # a NaN gap, multiplier or scaling: an error that names it
     E0, g0 = problem.assembler.gradient(x)
     if not (np.isfinite(E0) and np.all(np.isfinite(g0))):
         raise ValueError(f"J_h or its gradient is not finite at the initial guess (J_h = {E0}): "

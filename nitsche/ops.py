@@ -1,4 +1,5 @@
 """Differential operators on jets, named as in the mathematics."""
+import jax
 import jax.numpy as jnp
 
 
@@ -72,3 +73,30 @@ def tangential_component(v, n):
 def plus(s):
     """[s]_+ = max(s, 0); its derivative counts s = 0 as active."""
     return jnp.where(s >= 0, s, 0.0)
+
+
+def deformation_gradient(u):
+    """F = I + grad u of a displacement field."""
+    G = u.grad
+    return jnp.eye(G.shape[0]) + G
+
+
+def det(F):
+    """det F of a 2x2 or 3x3 matrix (written out: smooth, and cheap to differentiate)."""
+    if F.shape == (2, 2):
+        return F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+    return jnp.dot(F[0], jnp.cross(F[1], F[2]))
+
+
+def neo_hookean(F, mu, lam):
+    """The compressible neo-Hookean energy density
+    W(F) = mu/2 (tr(F^T F) - d - 2 ln J) + lam/2 (ln J)^2,  J = det F
+    (NaN for J <= 0: the line search steps back from inverted elements)."""
+    J = det(F)
+    logJ = jnp.log(J)
+    return 0.5 * mu * (jnp.sum(F * F) - F.shape[0] - 2 * logJ) + 0.5 * lam * logJ ** 2
+
+
+def first_piola(W, F, *args):
+    """P = dW/dF, the first Piola-Kirchhoff stress of an energy density W(F, *args)."""
+    return jax.grad(W)(F, *args)

@@ -4,7 +4,7 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
-from .assembly import Assembler, ConstantDensity, Term, check_arguments
+from .assembly import Assembler, ConstantDensity, Parameters, Term, check_arguments
 from .functional import Integral
 from .measures import cells
 from .stability import SingularEnergy, largest_generalized_eigenvalue
@@ -23,16 +23,23 @@ class Problem:
     constraints: Equality / Inequality / Penalty constraints.
     alpha0_limits: {constraint name: limit}: one stability limit for all elements of a
         constraint (e.g. from stability_limits()) instead of the element-local ones computed here.
+    parameters: {name: value}: run-time parameters (a load factor, a time) that densities
+        name as arguments like fields; they enter the compiled kernels as data, so
+        set_parameters(t=...) changes the problem without compiling anything.
 
     After construction: limits[name] and alpha0[name] per element of each constraint, and
     alpha0_limits[name] the smallest limit.
     """
 
-    def __init__(self, fields, energy, constraints=(), alpha0_limits=None):
+    def __init__(self, fields, energy, constraints=(), alpha0_limits=None, parameters=None):
         self.fields = list(fields)
         names = [f.name for f in self.fields]
         if len(set(names)) != len(names):
             raise ValueError(f"field names must be unique, got {names}")
+        self.parameters = Parameters(parameters)
+        clash = sorted(set(names) & set(self.parameters.names))
+        if clash:
+            raise ValueError(f"parameter names {clash} are also field names; rename one")
         self.by_name = {f.name: f for f in self.fields}
         sizes = [f.ndofs for f in self.fields]
         self.offsets = dict(zip(names, np.cumsum([0] + sizes[:-1]).tolist()))
@@ -53,9 +60,11 @@ class Problem:
         self._check_arguments()
         self.energy_terms = [Term(i.pointwise(), i.names, i.on, self.fields, self.offsets,
                                   f"the {'residual' if i.residual else 'energy'} density",
-                                  residual=i.residual) for i in self.integrals]
+                                  residual=i.residual, parameters=self.parameters)
+                             for i in self.integrals]
         self.constraint_terms = [Term(c.pointwise(), c.names, c.on, self.fields, self.offsets,
-                                      f"constraint '{c.name}'", keep_points=True, residual=c.residual)
+                                      f"constraint '{c.name}'", keep_points=True, residual=c.residual,
+                                      parameters=self.parameters)
                                  for c in self.constraints]
         # J_h has a potential (Cholesky, energy line search) unless a term is a residual
         self.symmetric = not any(t.residual for t in self.energy_terms + self.constraint_terms)
@@ -72,9 +81,10 @@ class Problem:
 
     def _check_arguments(self):
         """Every argument of a constraint's gap and multiplier names a field or x, n, h."""
+        p = self.parameters.names
         for c in self.constraints:
-            check_arguments(c.gap_names, self.by_name, f"the gap of constraint '{c.name}'")
-            check_arguments(c.multiplier_names, self.by_name, f"the multiplier of constraint '{c.name}'")
+            check_arguments(c.gap_names, self.by_name, f"the gap of constraint '{c.name}'", p)
+            check_arguments(c.multiplier_names, self.by_name, f"the multiplier of constraint '{c.name}'", p)
 
     # -- alpha0 -----------------------------------------------------------------
     def _resolve_alpha0(self, given):
@@ -150,7 +160,8 @@ class Problem:
         constraint's own may have released its tabulations)."""
         try:
             term = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
-                        f"the multiplier of constraint '{c.name}'", vector=True)
+                        f"the multiplier of constraint '{c.name}'", vector=True,
+                        parameters=self.parameters)
         except ConstantDensity:  # a given multiplier lambda = q: B = 0
             return None
         if alpha0 is not None:
@@ -228,6 +239,23 @@ class Problem:
         start = sum(g.fixed_dofs.size for g in self.fields[:self.fields.index(f)])
         self.fixed_values[start:start + values.size] = values
 
+    def set_parameters(self, **values):
+        """Change run-time parameters (data of the compiled kernels: nothing recompiles)."""
+        for k, v in values.items():
+            if k not in self.parameters:
+                raise ValueError(f"unknown parameter {k!r}; this problem's parameters: "
+                                 f"{list(self.parameters.names)}")
+            self.parameters.values[self.parameters.names.index(k)] = float(v)
+
+    def state(self):
+        """The data that changes along a load path: parameter values and prescribed values."""
+        return dict(zip(self.parameters.names, self.parameters.values.tolist())), self.fixed_values.copy()
+
+    def set_state(self, state):
+        """Restore a state() (e.g. to evaluate a step of a path after it has been solved)."""
+        self.set_parameters(**state[0])
+        self.fixed_values[:] = state[1]
+
     def join(self, parts):
         return np.concatenate([np.asarray(parts[f.name], dtype=float) for f in self.fields])
 
@@ -262,13 +290,42 @@ class Problem:
         self._ff_indptr = np.concatenate([[0], np.cumsum(np.bincount(number[row[keep]],
                                                                      minlength=self.free.size))])
 
+    def _free_matrix(self, data):
+        """The free-free block of the CSR matrix with the assembler's pattern and `data`."""
+        n = self.free.size
+        return sp.csr_matrix((data[self._sel], self._ff_indices, self._ff_indptr), shape=(n, n))
+
     def newton_system(self, x):
         """J_h(x), its gradient on the free dofs and the free-free block of the Hessian (for a
         problem with residual terms: the energy terms' J, the residual and its Jacobian)."""
         E, g, data = self.assembler.evaluate(x)
-        n = self.free.size
-        A = sp.csr_matrix((data[self._sel], self._ff_indices, self._ff_indptr), shape=(n, n))
-        return E, g[self.free], A
+        return E, g[self.free], self._free_matrix(data)
+
+    def moved(self, x0):
+        """The increment d = (prescribed values) - x0 on the fixed dofs, or None when x0
+        already holds them (to round-off)."""
+        d = self.fixed_values - np.asarray(x0, dtype=float)[self.fixed]
+        scale = max(np.abs(self.fixed_values).max(initial=0.0), np.abs(x0).max(initial=0.0), 1e-300)
+        return d if np.abs(d).max(initial=0.0) > 1e-12 * scale else None
+
+    def lift(self, x0, solve):
+        """x0 with the prescribed values set and their increment d carried into the interior
+        by the linearization at x0 (a tangent predictor, for an elastic body a linear
+        elastic lifting):
+
+            H_ff dx_f = -H_fc d,   H the Hessian (Jacobian) of J_h at x0,
+
+        solve(A, b) solving A y = b on the free dofs.  Returns x0 itself when nothing moved."""
+        x0 = np.asarray(x0, dtype=float)
+        d = self.moved(x0)
+        x = self.initial(x0)
+        if d is None:
+            return x
+        _, _, data = self.assembler.evaluate(x0)
+        step = np.zeros(self.ndofs)
+        step[self.fixed] = d
+        x[self.free] += solve(self._free_matrix(data), -(self.assembler.matrix(data) @ step)[self.free])
+        return x
 
     def minimize(self, x0=None, **options):
         """Newton's method from x0; see nitsche.newton.newton for the options."""

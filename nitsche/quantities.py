@@ -22,7 +22,7 @@ def quantity(problem, x, density, label="quantity"):
     if not fields:
         raise ValueError(f"{label} must take a field argument (one of {sorted(problem.by_name)})")
     term = Term(lambda args: call(density, names, args), names, cells(fields[0]), problem.fields,
-                problem.offsets, label)
+                problem.offsets, label, parameters=problem.parameters)
     (values,) = term.with_pointwise(lambda args: (call(density, names, args),)).run("values", x)
     return values, term.W[:term.nel], fields[0].mesh
 
