@@ -139,9 +139,9 @@ class Case:
             values[k] = _parse(k, v, values[k])
         for k, allowed in getattr(self.module, "RANGES", {}).items():
             v = values[k]
-            given_as_text = isinstance(v, str) and self.defaults[k][0] == "auto"  # 'auto', 'F*limit'
+            given_as_text = isinstance(v, str) and relative(self.defaults[k][0])  # 'auto', 'F*limit'
             if not given_as_text and v not in allowed:
-                auto = " or 'auto'" if self.defaults[k][0] == "auto" else ""
+                auto = " or 'auto'" if relative(self.defaults[k][0]) else ""
                 raise ParameterError(f"parameter {k}={v!r} ({self.defaults[k][1]}) must be "
                                      f"{allowed}{auto}; set --set {k}=... within that range")
         p = SimpleNamespace(**values)
@@ -236,6 +236,11 @@ class Case:
 TRUE, FALSE = ("true", "1"), ("false", "0")  # spellings of a boolean parameter, any case
 
 
+def relative(value):
+    """An alpha0 given relative to the stability limit: 'auto' or 'F*limit'."""
+    return isinstance(value, str) and (value == "auto" or value.endswith("*limit"))
+
+
 def _parse(name, text, default):
     if not isinstance(text, str):
         return text
@@ -247,8 +252,8 @@ def _parse(name, text, default):
     try:
         if isinstance(default, int):
             return int(text)
-        if isinstance(default, float) or default == "auto":
-            if default == "auto" and (text == "auto" or text.endswith("*limit")):
+        if isinstance(default, float) or relative(default):
+            if relative(default) and relative(text):
                 return text  # checked by nitsche.Scaling
             value = float(text)
             if not math.isfinite(value):
@@ -257,7 +262,7 @@ def _parse(name, text, default):
         return text
     except ValueError:
         kind = "an integer" if isinstance(default, int) else \
-            "a finite number" + (" or 'auto'" if default == "auto" else "")
+            "a finite number" + (" or 'auto'" if relative(default) else "")
         raise ParameterError(f"parameter {name}={text!r}: expected {kind}")
 
 

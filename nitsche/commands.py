@@ -9,22 +9,23 @@ import os
 import sys
 import time
 
-from .io import write_json, write_vtu
-from .plot import plot_convergence, plot_solution
+from .io import write_json, write_pvd, write_vtu
+from .plot import plot_convergence, plot_path, plot_solution
 from .quantities import evaluate
 from .reactions import reactions
 from .study import StudyFailed, run_study, solve_nested, table
 
 
 def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False):
-    """Solve `case` at `level` (nested: levels 0..level, each from the previous one);
-    global_check: also the global alpha0 limits and the stability ratio (J_h convex if <= 1)."""
+    """Solve `case` at `level` (nested: levels 0..level, each from the previous one; a case
+    with a load path solves its path at `level` only); global_check: also the global alpha0
+    limits and the stability ratio (J_h convex if <= 1)."""
     t0 = time.perf_counter()
     options = dict(options)
     if verbose:
         options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
                                                        f"J_h {E:.12g}", file=sys.stderr)
-    if nested:
+    if nested and not case.has_path:
         problem, result, its, failure = solve_nested(case, level, degree, p, options,
                                                      progress=True)
     else:
@@ -33,6 +34,10 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
         its, failure = [result.iterations], None
         if not result.converged:
             failure = dict(level=level, reason=result.reason)
+        steps = getattr(problem, "path", None)
+        if steps is not None:
+            failure = None if steps.converged else dict(level=level, reason=steps.reason)
+            its = [s["iterations"] for s in steps.steps]
     seconds = time.perf_counter() - t0
     reached = problem.setup.level
     if failure and reached < level:
@@ -65,6 +70,10 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     extra = getattr(case.module, "report", None)
     if extra:
         data.update(extra(problem, result, p))
+    steps = getattr(problem, "path", None)
+    if steps is not None:
+        data.update(steps=steps.steps, step_cuts=steps.cuts, path_seconds=steps.seconds)
+        write_path(problem, steps, out, f"{case.name}, level {reached}, P{degree}")
     declared = getattr(case.module, "quantities", None)  # quantities(p) -> {name: density}
     found = evaluate(problem, result.x, declared(p)) if declared else {}
     data["quantities"] = {k: s for k, (s, _, _) in found.items()}
@@ -77,6 +86,20 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
         out.adopt(hook(problem, result, p, out.staging))
     write_json(out.stage("result.json"), data)
     return 0 if data["converged"] else 1
+
+
+def write_path(problem, steps, out, title):
+    """A load path's VTU series solution_NNNN.vtu (one per accepted step, solution_NNNN_i.vtu
+    per mesh i of several), their collection solution.pvd (ParaView: time = the step's
+    time) and the reactions against time, reactions.png; the problem is left at the last
+    accepted step."""
+    series = []
+    for k, record in enumerate(steps.steps[:len(steps.results)]):
+        names = out.adopt(write_vtu(out.stage_prefix(f"solution_{k + 1:04d}"), problem,
+                                    steps.at(problem, k)))
+        series.append((record["time"], names))
+    out.adopt([write_pvd(out.stage("solution.pvd"), series)])
+    out.adopt([plot_path(steps.steps, out.stage("reactions.png"), title)])
 
 
 def study(case, levels, degree, p, out, options, start=0):

@@ -29,6 +29,17 @@ def write_json(path, data):
     return path
 
 
+def write_pvd(path, series):
+    """A ParaView collection of a VTU series: series = [(time, [file names, one per
+    mesh])], the files beside `path`."""
+    rows = "\n".join(f'    <DataSet timestep="{float(t)!r}" part="{i}" file="{name}"/>'
+                     for t, names in series for i, name in enumerate(names))
+    with open(path, "w") as fh:
+        fh.write('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n'
+                 f"  <Collection>\n{rows}\n  </Collection>\n</VTKFile>\n")
+    return path
+
+
 def _plain(o):
     """o with NumPy values as Python ones and non-finite floats as None."""
     if isinstance(o, (np.ndarray, np.generic)):

@@ -124,3 +124,32 @@ def plot_convergence(rows, path, rate=None, title=""):
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def plot_path(steps, path, title=""):
+    """The reactions of a load path against its time: one curve per field, named boundary
+    (every fixed dof, 'all', where a field names none) and component that is not zero."""
+    done = [s for s in steps if s["converged"]]
+    t = [0.0] + [s["time"] for s in done]
+    curves = {}
+    for s in done:
+        for field, regions in s["reactions"].items():
+            named = [r for r in regions if r != "all"] or ["all"]
+            for region in named:
+                for comp, R in regions[region].items():
+                    curves.setdefault((field, region, comp), []).append(R)
+    peak = max([abs(R) for c in curves.values() for R in c], default=0.0)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for (field, region, comp), R in curves.items():
+        if max(abs(r) for r in R) > 1e-9 * peak:
+            ax.plot(t, [0.0] + R, ".-", label=f"{field} {region} {comp}")
+    ax.set_xlabel("time t (load factor)")
+    ax.set_ylabel("reaction")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
