@@ -55,8 +55,10 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
     `parameter` (if the problem has it) is set to t and set_step(problem, t) is called (e.g.
     Problem.set_values of a moved boundary).  Steps are cut in half on failure, down to
     min_step times the listed interval, and regrow after two successes.  One line per step
-    on stderr unless quiet.  Returns a Path; each record: step, time, increment,
-    iterations, converged, cuts, contact_measure, reactions, energy, seconds."""
+    on stderr unless quiet; each step lifts (newton_options' `lift` is ignored).  Returns
+    a Path; each record: step, time, increment, iterations, converged, cuts,
+    contact_measure, reactions, energy, seconds."""
+    newton_options.pop("lift", None)
     times = np.asarray(times, dtype=float).ravel()
     if times.size == 0 or not np.all(np.diff(np.concatenate([[start], times])) > 0):
         raise ValueError(f"times must increase from start = {start:g}, got {times.tolist()}")
@@ -86,7 +88,7 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
                 problem.set_values(f.name, parts[f.history_of])
             set_time(t + h)
             try:
-                result = problem.minimize(x, **newton_options)
+                result = problem.minimize(x, lift=True, **newton_options)
                 reason = result.reason
             except ValueError as e:  # e.g. J_h not finite at the start: an inverted element
                 result, reason = None, str(e)

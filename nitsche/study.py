@@ -43,7 +43,10 @@ def nested(make_problem, levels, solve=None, **newton_options):
     """Nested iteration for any problem: for each k in `levels`, minimize J_h of
     make_problem(k) from the previous level's solution prolongated to it (I u_{k-1}), by
     solve(problem, x0, **newton_options) (default Problem.minimize; a case's load path).
-    Yields (k, problem, result); stops after a level that does not converge."""
+    Yields (k, problem, result); stops after a level that does not converge.  I u_{k-1}
+    differs from the prescribed values only by interpolation: it is not lifted (lift=False,
+    which saves a factorization per level) unless newton_options say so."""
+    newton_options.setdefault("lift", False)
     prev, solve = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o))
     for k in levels:
         problem = make_problem(k)
