@@ -116,16 +116,12 @@ class DistributedProblem:
                       for t, r in zip(terms, self.element_ranks) if (r == self.rank).any()}
         self.local_assembler = Assembler(list(self.local.values()), problem.ndofs) \
             if self.local else None
+        self.assembler = SummedAssembler(self)
         self.layout = Layout(self)
         self.matrix = self.layout.matrix()
 
     def __getattr__(self, name):
         return getattr(self.serial, name)
-
-    @property
-    def assembler(self):
-        """Seen by Newton (residual_scale): the terms and their summed gradients."""
-        return self
 
     def summed(self, a):
         """sum over ranks of a (a number or an array), reduced on rank 0 and broadcast."""
@@ -136,31 +132,19 @@ class DistributedProblem:
         self.comm.Bcast(total, root=0)
         return total
 
-    def evaluate(self, x, terms=None, hessian=True):
-        """J_h(x) and its gradient summed over ranks, and this rank's Hessian data (on its
-        local pattern; None unless asked), of all terms or of the given (serial) ones."""
-        mine = None if terms is None else [self.local[id(t)] for t in terms if id(t) in self.local]
-        if self.local_assembler is None or mine == []:
-            E, g, data = 0.0, np.zeros(self.serial.ndofs), np.zeros(0) if hessian else None
-        else:
-            E, g, data = self.local_assembler.evaluate(x, mine, hessian)
-        return float(self.summed(E)[0]), self.summed(g), data
-
-    def gradient(self, x, terms=None):
-        """With terms: (J, gradient) of those terms, as Assembler.gradient; else the gradient
-        of J_h, as Problem.gradient."""
-        E, g, _ = self.evaluate(x, terms, hessian=False)
-        return g if terms is None else (E, g)
-
     def energy(self, x):
         """J_h(x)."""
         E = self.local_assembler.energy(x) if self.local_assembler is not None else 0.0
         return float(self.summed(E)[0])
 
+    def gradient(self, x):
+        """The gradient of J_h at x (all dofs)."""
+        return self.assembler.gradient(x)[1]
+
     def newton_system(self, x):
         """J_h(x), its gradient on the free dofs and the PETSc Hessian on them (as a
         DistributedMatrix)."""
-        E, g, data = self.evaluate(x)
+        E, g, data = self.assembler.evaluate(x)
         self.layout.set_values(data)
         return E, g[self.serial.free], self.matrix
 
@@ -170,6 +154,28 @@ class DistributedProblem:
         unknowns, else direct); PETSc options (-ksp_type ...) override their settings."""
         from .newton import newton
         return newton(self, x0, solver=KrylovSolver(solver, self), **options)
+
+
+class SummedAssembler:
+    """The serial Assembler's evaluations (of all terms or of the given serial terms) as sums
+    over the ranks of their local assemblies; the Hessian data stays this rank's (on its
+    local pattern)."""
+
+    def __init__(self, dp):
+        self.dp, self.terms = dp, dp.terms
+
+    def evaluate(self, x, terms=None, hessian=True):
+        dp = self.dp
+        mine = None if terms is None else [dp.local[id(t)] for t in terms if id(t) in dp.local]
+        if dp.local_assembler is None or mine == []:
+            E, g, data = 0.0, np.zeros(dp.serial.ndofs), np.zeros(0) if hessian else None
+        else:
+            E, g, data = dp.local_assembler.evaluate(x, mine, hessian)
+        return float(dp.summed(E)[0]), dp.summed(g), data
+
+    def gradient(self, x, terms=None):
+        """J(x) and its gradient, summed over the ranks."""
+        return self.evaluate(x, terms, hessian=False)[:2]
 
 
 class Layout:
@@ -299,7 +305,8 @@ class KrylovSolver:
         reason = self.ksp.getConvergedReason()
         self.iterations.append(self.ksp.getIterationNumber())
         R = PETSc.KSP.ConvergedReason
-        if reason in (R.DIVERGED_INDEFINITE_MAT, R.DIVERGED_INDEFINITE_PC, R.DIVERGED_PC_FAILED):
+        if reason in (R.DIVERGED_INDEFINITE_MAT, R.DIVERGED_INDEFINITE_PC,
+                      R.DIVERGED_PCSETUP_FAILED):
             raise IndefiniteHessian(f"PETSc KSP: {reason_name(reason)}")
         if reason < 0:
             raise NotSolved(f"PETSc KSP ({self.ksp.getType()}, {self.ksp.getPC().getType()}): "
