@@ -243,7 +243,6 @@ class DistributedMatrix:
 
     def __init__(self, mat, layout):
         self.mat, self.layout = mat, layout
-        self.shape = (layout.n, layout.n)
 
     def __matmul__(self, v):
         y = self.layout.vector()
@@ -292,7 +291,6 @@ class KrylovSolver:
         B = np.linalg.qr(near_nullspace(self.dp.serial))[0]
         vectors = [self.dp.layout.vector(b) for b in B.T]
         self.dp.layout.A.setNearNullSpace(PETSc.NullSpace().create(vectors=vectors, comm=self.dp.comm))
-        self.ksp.setFromOptions()
 
     def solve(self, A, b, rtol=0.0):
         from petsc4py import PETSc
