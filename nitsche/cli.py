@@ -90,6 +90,9 @@ def main(argv=None):
     ranks = None
     if args.command == "run" and distributed.launched_by_mpirun():
         ranks = start_ranks(petsc_options)
+    elif args.command in ("study", "paper") and distributed.launched_by_mpirun():
+        parser().error(f"'nitsche {args.command}' does not run on MPI ranks (each rank would "
+                       "write the same folder): start it without mpirun, or use 'nitsche run'")
     elif petsc_options:
         parser().error(f"unrecognized arguments: {' '.join(petsc_options)} (PETSc options: "
                        "only for 'nitsche run' under mpirun)")

@@ -80,13 +80,15 @@ def test_3d_with_gamg(ranks, reference):
 
 
 def test_mpirun_nitsche_run_writes_one_result(tmp_path):
+    """Rank 0 writes result.json and one VTU; PETSc options reach the KSP."""
     out = tmp_path / "run"
     text = mpirun(2, "-m", "nitsche.cli", "run", "obstacle", "--level", "2", "--solver", "gamg",
-                  "--out", str(out), "-ksp_type", "cg")
+                  "--out", str(out), "-ksp_type", "gmres", "-ksp_view")
     data = json.loads((out / "result.json").read_text())
     assert data["ranks"] == 2 and data["converged"] and data["solver"] == "petsc-gamg"
     assert sorted(p.suffix for p in out.iterdir() if p.suffix == ".vtu") == [".vtu"]
     assert text.count("wrote ") == 1  # rank 0 alone reports
+    assert "type: gmres" in text  # PETSc options pass through (-ksp_view prints the KSP)
     case = cases.get("obstacle")
     result = solve_nested(case, 2, 1, case.parameters({}))[1]
     assert abs(data["energy"] - result.energy) <= 1e-10 * abs(result.energy)
