@@ -65,17 +65,31 @@ def _is_number(s):
         return False
 
 
-def cell_ranks(mesh, ranks):
-    """The rank of each cell of a mesh: a k-way METIS partition of the graph of cells that
-    share a facet (mesh.f2t)."""
+def element_ranks(terms, free, ranks):
+    """The rank of each element of each term: a k-way METIS partition (pymetis) of the graph
+    whose vertices are the cells of all meshes, two cells joined when elements they own share
+    a free dof (neighbours in a mesh, and across meshes the cells an interface or a membrane
+    couples, which thereby land on one rank)."""
+    offsets, n = {}, 0
+    for t in terms:
+        mesh = t.measure.mesh
+        if id(mesh) not in offsets:
+            offsets[id(mesh)], n = n, n + mesh.t.shape[1]
+    vertices = [offsets[id(t.measure.mesh)] + t.cells for t in terms]
     if ranks == 1:
-        return np.zeros(mesh.t.shape[1], np.int64)
+        return [np.zeros(v.size, np.int64) for v in vertices]
     import pymetis
-    a, b = mesh.f2t[:, mesh.f2t[1] >= 0]
-    n = mesh.t.shape[1]
-    graph = sp.coo_matrix((np.ones(2 * a.size), (np.r_[a, b], np.r_[b, a])), shape=(n, n)).tocsr()
-    return np.asarray(pymetis.part_graph(ranks, xadj=graph.indptr, adjncy=graph.indices)[1],
-                      np.int64)
+    isfree = np.zeros(1 + max(int(t.global_dofs.max()) for t in terms), bool)
+    isfree[free] = True
+    rows = np.concatenate([np.repeat(v, t.global_dofs.shape[1]) for v, t in zip(vertices, terms)])
+    dofs = np.concatenate([t.global_dofs.ravel() for t in terms])
+    keep = isfree[dofs]
+    M = sp.csr_matrix((np.ones(keep.sum()), (rows[keep], dofs[keep])), shape=(n, isfree.size))
+    graph = (M @ M.T).tocsr()
+    graph.setdiag(0)
+    graph.eliminate_zeros()
+    part = np.asarray(pymetis.part_graph(ranks, xadj=graph.indptr, adjncy=graph.indices)[1])
+    return [part[v] for v in vertices]
 
 
 def restrict(term, elements):
@@ -104,13 +118,8 @@ class DistributedProblem:
         self.serial, self.comm = problem, comm or world()
         self.ranks, self.rank = self.comm.size, self.comm.rank
         terms = problem.assembler.terms
-        parts = {}  # id(mesh) -> rank of each cell, decided on rank 0
-        for t in terms:
-            mesh = t.measure.mesh
-            if id(mesh) not in parts:
-                parts[id(mesh)] = self.comm.bcast(cell_ranks(mesh, self.ranks)
-                                                  if self.rank == 0 else None)
-        self.element_ranks = [parts[id(t.measure.mesh)][t.cells] for t in terms]
+        self.element_ranks = self.comm.bcast(element_ranks(terms, problem.free, self.ranks)
+                                             if self.rank == 0 else None)
         self.terms = terms
         self.local = {id(t): restrict(t, np.flatnonzero(r == self.rank))
                       for t, r in zip(terms, self.element_ranks) if (r == self.rank).any()}
