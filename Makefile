@@ -5,7 +5,7 @@ PY      = $(VENV)/bin/python
 PIP     = $(VENV)/bin/pip
 OUT    ?= out
 
-.PHONY: install demo paper test test-full bench docs clean system-deps
+.PHONY: install demo paper test test-full bench docs clean system-deps petsc
 
 $(VENV)/.installed: pyproject.toml
 	$(MAKE) system-deps
@@ -29,6 +29,26 @@ system-deps:
 	  ($$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libsuitesparse-dev libopenblas0-pthread >/dev/null) \
 	  || echo "could not install libsuitesparse-dev / OpenBLAS: SciPy's solver or the reference BLAS"; \
 	fi
+
+# The distributed engine (mpirun -n N nitsche run CASE; nitsche.distributed): Debian's Open MPI,
+# then mpi4py, pymetis, and PETSc + petsc4py built from PyPI's sources against that MPI (about
+# 5 minutes each on 2 cores); the tests in tests/test_distributed.py run once this is installed.
+PETSC_CONFIGURE_OPTIONS ?= --with-debugging=0 --with-fc=0 --with-x=0
+PETSC_VERSION ?= 3.26.1
+$(VENV)/.petsc-installed: $(VENV)/.installed
+	@if ! command -v mpicc >/dev/null 2>&1 || ! command -v patchelf >/dev/null 2>&1; then \
+	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO="sudo -n"; \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libopenmpi-dev openmpi-bin patchelf >/dev/null; \
+	fi
+	$(PIP) install -q cython numpy "setuptools>=68" wheel
+	MPICC=mpicc MPICXX=mpicxx PETSC_CONFIGURE_OPTIONS="$(PETSC_CONFIGURE_OPTIONS)" \
+	  $(PIP) install -q --no-build-isolation petsc==$(PETSC_VERSION)
+	MPICC=mpicc $(PIP) install -q --no-build-isolation petsc4py==$(PETSC_VERSION)
+	$(PIP) install -q -e ".[petsc]"
+	$(PY) -c "from petsc4py import PETSc; from mpi4py import MPI; print('PETSc', PETSc.Sys.getVersion(), MPI.Get_library_version().splitlines()[0])"
+	touch $@
+
+petsc: $(VENV)/.petsc-installed
 
 # every paper case, fast (about 2 minutes): figures and tables in $(OUT)/paper/index.md
 demo: install

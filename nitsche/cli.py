@@ -13,11 +13,11 @@ import sys
 import threading
 import warnings
 
-from . import cases as registry
+from . import cases as registry, distributed
 from .case import ParameterError, parse_assignments
 from .output import Interrupted, OutputFolder, raise_interrupted
 
-SOLVERS = ("auto", "cholmod", "superlu", "amg")
+SOLVERS = ("auto", "cholmod", "superlu", "amg", "gamg", "direct")  # the last two: on MPI ranks
 USAGE, WRITE_FAILED = 2, 3
 
 
@@ -39,7 +39,9 @@ def _common(sp):
     sp.add_argument("--out", default=None, help="output folder (default out/CASE)")
     sp.add_argument("--overwrite", action="store_true",
                     help="replace the outputs of an unknown earlier run in the --out folder")
-    sp.add_argument("--solver", default="auto", choices=SOLVERS, help="linear solver")
+    sp.add_argument("--solver", default="auto", choices=SOLVERS,
+                    help="linear solver (under mpirun: auto, gamg or direct, and PETSc options "
+                         "such as -ksp_type gmres -ksp_monitor pass through)")
     sp.add_argument("--maxiter", type=int, default=50, help="Newton iteration limit")
     sp.add_argument("--rtol", type=float, default=1e-10, help="Newton relative residual tolerance")
     sp.add_argument("-h", "--help", action="store_true", help="show this help and the case's parameters")
@@ -84,7 +86,17 @@ def show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def main(argv=None):
-    args = parser().parse_args(argv)
+    args, petsc_options = parser().parse_known_args(argv)
+    ranks = None
+    if args.command == "run" and distributed.launched_by_mpirun():
+        ranks = start_ranks(petsc_options)
+    elif args.command in ("study", "paper") and distributed.launched_by_mpirun():
+        parser().error(f"'nitsche {args.command}' does not run on MPI ranks (each rank would "
+                       "write the same folder): start it without mpirun, or use 'nitsche run'")
+    elif petsc_options:
+        parser().error(f"unrecognized arguments: {' '.join(petsc_options)} (PETSc options: "
+                       "only for 'nitsche run' under mpirun)")
+    args.ranks = ranks
     handlers = {}
     if threading.current_thread() is threading.main_thread():
         handlers = {signal.SIGTERM: signal.signal(signal.SIGTERM, raise_interrupted),
@@ -104,8 +116,31 @@ def main(argv=None):
             signal.signal(signum, handler)
 
 
+def start_ranks(petsc_options):
+    """Under mpirun: PETSc's options set; ranks other than 0 print nothing (rank 0 reports
+    and writes).  The communicator, or a usage error without petsc4py."""
+    try:
+        comm = distributed.world()
+        distributed.set_petsc_options(petsc_options)
+    except ImportError as e:
+        print(f"nitsche: error: a run under mpirun needs mpi4py and petsc4py ({e}); install "
+              "them with 'make petsc'", file=sys.stderr)
+        sys.exit(USAGE)
+    except ValueError as e:
+        print(f"nitsche: error: {e}", file=sys.stderr)
+        sys.exit(USAGE)
+    if comm.rank > 0:
+        sys.stdout = sys.stderr = open(os.devnull, "w")
+    return comm
+
+
 def check_options(args):
     """Newton's options and the levels, before anything is solved or written."""
+    mpi = distributed.SOLVERS if args.ranks else [s for s in SOLVERS if s not in ("gamg", "direct")]
+    if args.solver not in mpi:
+        raise ParameterError(f"--solver {args.solver}: " + (
+            f"under mpirun the solver is one of {', '.join(mpi)}" if args.ranks else
+            "a PETSc solver, for runs under mpirun (mpirun -n N nitsche run ...)"))
     if args.maxiter < 0:
         raise ParameterError(f"--maxiter must be >= 0 (Newton iterations), got {args.maxiter}")
     if not (math.isfinite(args.rtol) and 0 < args.rtol < 1):
@@ -174,13 +209,16 @@ def new_case(name):
 def execute(case, args, p, out, options):
     """Solve into an OutputFolder and commit it; a failed write leaves the folder as it was."""
     from . import commands
+    if args.ranks is not None and args.ranks.rank > 0:
+        return follow(case, args, p, options)
     folder = OutputFolder(out, overwrite=args.overwrite)
+    engine = distributed.DistributedProblem if args.ranks is not None else None
     try:
         with folder:
             if args.command == "run":
                 rc = commands.run(case, args.level, args.degree, p, folder, options,
                                   nested=args.nested, verbose=args.verbose,
-                                  global_check=args.global_check)
+                                  global_check=args.global_check, engine=engine)
             else:
                 rc = commands.study(case, args.levels, args.degree, p, folder, options,
                                     start=args.start)
@@ -198,6 +236,17 @@ def execute(case, args, p, out, options):
         return WRITE_FAILED
     print(commands.written(paths))
     return rc
+
+
+def follow(case, args, p, options):
+    """A rank other than 0 of a run under mpirun: the same computation (its collective
+    steps), its files staged in a temporary folder and dropped."""
+    import tempfile
+    from . import commands
+    with tempfile.TemporaryDirectory() as tmp, OutputFolder(tmp, overwrite=True) as folder:
+        return commands.run(case, args.level, args.degree, p, folder, options, nested=args.nested,
+                            verbose=args.verbose, global_check=args.global_check,
+                            engine=distributed.DistributedProblem)
 
 
 if __name__ == "__main__":

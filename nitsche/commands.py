@@ -16,10 +16,12 @@ from .reactions import reactions
 from .study import StudyFailed, run_study, solve_nested, table
 
 
-def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False):
+def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False,
+        engine=None):
     """Solve `case` at `level` (nested: levels 0..level, each from the previous one; a case
     with a load path solves its path at `level` only); global_check: also the global alpha0
-    limits and the stability ratio (J_h convex if <= 1)."""
+    limits and the stability ratio (J_h convex if <= 1); engine: problem -> the problem to
+    minimize (nitsche.distributed.DistributedProblem on MPI ranks)."""
     t0 = time.perf_counter()
     options = dict(options)
     if verbose:
@@ -27,9 +29,10 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
                                                        f"J_h {E:.12g}", file=sys.stderr)
     if nested and not case.has_path:
         problem, result, its, failure = solve_nested(case, level, degree, p, options,
-                                                     progress=True)
+                                                     progress=True, engine=engine)
     else:
         problem = case.problem(level, degree, p)
+        problem = engine(problem) if engine else problem
         result = case.solve(problem, None, **options)
         its, failure = [result.iterations], None
         if not result.converged:
@@ -59,7 +62,8 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
                 energy=result.energy, active_count=result.active_count,
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
                 feasible=result.feasible, seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
-                solver=result.solver, solver_stats=result.solver_stats, parameters=vars(p),
+                solver=result.solver, solver_stats=result.solver_stats, ranks=result.ranks,
+                parameters=vars(p),
                 alpha0_limits=problem.alpha0_limits, constraints=result.constraints, errors=errors,
                 reactions=reactions(problem, result.x))
     if failure and reached < level:

@@ -207,11 +207,7 @@ class AMGCG:
             return False
         if self.ml is None or self.ml.levels[0].A.shape != A.shape:
             self._build(A)
-        X = np.random.default_rng(0).standard_normal((A.shape[0], 1))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter
-            mu = spla.lobpcg(A, X, M=self.M, largest=False, tol=1e-3, maxiter=iterations)[0]
-        return bool(mu[0] > 0)
+        return bool(lowest_eigenvalue(A, self.M, iterations) > 0)
 
     def solve(self, A, b, rtol=0.0):
         A = A.tocsr()
@@ -269,6 +265,16 @@ class GMRES:
         return x
 
 
+def lowest_eigenvalue(A, M, iterations=40):
+    """An estimate from above of the smallest eigenvalue of the symmetric A: LOBPCG
+    preconditioned by M from a seeded random start (a value <= 0 proves A is not positive
+    definite; a positive one is evidence)."""
+    X = np.random.default_rng(0).standard_normal((A.shape[0], 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # LOBPCG warns when it stops at maxiter
+        return float(spla.lobpcg(A, X, M=M, largest=False, tol=1e-3, maxiter=iterations)[0][0])
+
+
 def near_nullspace(problem):
     """Columns spanning the near-nullspace of the energy on the free dofs: for each
     vector Lagrange field its rigid-body modes (translations and rotations about the
@@ -318,7 +324,10 @@ def make_solver(name="auto", n=0, dim=2, symmetric=True):
     for a non-symmetric problem SuperLU's LU, GMRES-ILU for large 3D.
     CHOLMOD orders 2D problems by AMD alone: its default also tries METIS when the fill is
     large, which on 2D meshes of a million unknowns cost 4.5 s of analysis for a
-    factorization no faster."""
+    factorization no faster.  A solver object (with solve, is_positive_definite, stats and
+    name, e.g. nitsche.distributed's) is used as given."""
+    if hasattr(name, "solve"):
+        return name
     if not (isinstance(name, str) and (name == "auto" or name in SOLVERS)):
         raise ValueError(f"solver must be one of auto, {', '.join(SOLVERS)}, not {name!r}")
     if not symmetric:

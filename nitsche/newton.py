@@ -128,6 +128,7 @@ class Result:
     solver_stats: dict = field(default_factory=dict)
     constraints: dict = field(default_factory=dict)
     problem: object = None
+    ranks: int = 1  # MPI ranks of the run (nitsche.distributed)
 
     def field(self, name):
         """The dof vector of one field."""
@@ -287,7 +288,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     return Result(x=x, converged=converged, reason=reason, iterations=it, residuals=residuals,
                   energy=problem.energy(x), seconds=seconds, timings=timings, solver=lin.name,
                   solver_stats=lin.stats(),
-                  constraints=report, problem=problem,
+                  constraints=report, problem=problem, ranks=getattr(problem, "ranks", 1),
                   active_count=sum(r["active_count"] for r in report.values()),
                   contact_measure=sum(r["contact_measure"] for r in report.values()
                                       if r["kind"] != "equality"),

@@ -58,8 +58,10 @@ def nested(make_problem, levels, solve=None, **newton_options):
         prev = (problem, result)
 
 
-def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=False):
-    """Solve the case's levels first .. level by nested iteration.
+def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=False,
+                 engine=None):
+    """Solve the case's levels first .. level by nested iteration (engine: problem -> the
+    problem to minimize, e.g. nitsche.distributed.DistributedProblem; the case's by default).
 
     Returns (problem, result, iterations per level, failure): the finest level's problem
     and result, or, when a level fails (Newton, or an error such as MemoryError on a finer
@@ -67,7 +69,8 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     failure on the first level returns its unconverged result (an error there is raised)."""
     prev, its = None, []
     try:
-        for k, problem, result in nested(lambda k: case.problem(k, degree, p),
+        engine = engine or (lambda problem: problem)
+        for k, problem, result in nested(lambda k: engine(case.problem(k, degree, p)),
                                          range(first, level + 1), case.solve,
                                          **(newton_options or {})):
             its.append(result.iterations)

@@ -1,0 +1,24 @@
+"""Solve shipped cases with nitsche.distributed on the ranks of mpirun (for
+test_distributed.py): python mpi_solve.py SOLVER CASE:LEVEL ...; rank 0 prints one JSON line
+per case (energy, Newton iterations, convergence, ranks)."""
+import json
+import sys
+
+from nitsche import cases
+from nitsche.distributed import DistributedProblem
+
+
+def main(solver, specs):
+    for spec in specs:
+        name, level = spec.split(":")
+        case = cases.get(name)
+        problem = DistributedProblem(case.problem(int(level), case.degrees[0], case.parameters({})))
+        r = problem.minimize(solver=solver)
+        if problem.rank == 0:
+            print(json.dumps(dict(case=name, energy=r.energy, iterations=r.iterations,
+                                  converged=r.converged, ranks=r.ranks, solver=r.solver,
+                                  stats=r.solver_stats)), flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], sys.argv[2:])
