@@ -15,7 +15,7 @@ import warnings
 
 from . import cases as registry, distributed
 from .case import ParameterError, parse_assignments
-from .output import Interrupted, OutputFolder, raise_interrupted
+from .output import Interrupted, OutputFolder, raise_interrupted, redeliver_ignored
 
 SOLVERS = ("auto", "cholmod", "superlu", "amg", "gamg", "direct")  # the last two: on MPI ranks
 USAGE, WRITE_FAILED = 2, 3
@@ -102,6 +102,7 @@ def main(argv=None):
         handlers = {signal.SIGTERM: signal.signal(signal.SIGTERM, raise_interrupted),
                     # a file-size limit: the write fails (EFBIG) instead of killing the process
                     signal.SIGXFSZ: signal.signal(signal.SIGXFSZ, signal.SIG_IGN)}
+        unraisable, sys.unraisablehook = sys.unraisablehook, redeliver_ignored
     try:
         with warnings.catch_warnings():
             warnings.showwarning = show_warning
@@ -114,6 +115,8 @@ def main(argv=None):
     finally:
         for signum, handler in handlers.items():
             signal.signal(signum, handler)
+        if handlers:
+            sys.unraisablehook = unraisable
 
 
 def start_ranks(petsc_options):

@@ -19,6 +19,7 @@ import json
 import os
 import shutil
 import signal
+import sys
 import threading
 
 MANIFEST = ".nitsche-manifest.json"
@@ -45,6 +46,27 @@ class Interrupted(BaseException):
 def raise_interrupted(signum, frame):
     """Signal handler: turn SIGTERM into an exception, so that clean-up code runs."""
     raise Interrupted(signum)
+
+
+_IGNORED = []  # an interruption Python ignored, to be raised again
+
+
+def redeliver_ignored(unraisable):
+    """sys.unraisablehook: an interruption raised where Python ignores exceptions (the
+    handler ran inside a garbage-collector callback or a __del__) is raised again a
+    millisecond later by a SIGALRM handler, in the main thread's ordinary code (again,
+    should that land in such a callback too)."""
+    e = unraisable.exc_value
+    if isinstance(e, (Interrupted, KeyboardInterrupt)):
+        _IGNORED[:] = [e]
+        signal.signal(signal.SIGALRM, _raise_ignored)
+        signal.setitimer(signal.ITIMER_REAL, 1e-3)
+    else:
+        sys.__unraisablehook__(unraisable)
+
+
+def _raise_ignored(signum, frame):
+    raise _IGNORED.pop()
 
 
 @contextlib.contextmanager

@@ -311,3 +311,22 @@ def test_a_signal_held_during_the_commit_is_reported_after_it(previous, monkeypa
     monkeypatch.undo()
     assert "after the output was written" in capsys.readouterr().err
     assert_whole(previous, level=2)
+
+
+def test_an_interruption_in_a_garbage_collector_callback_is_not_lost(monkeypatch):
+    """A signal handler that runs inside a gc callback or __del__ (JAX registers one) has its
+    exception ignored by Python: the hook delivers the interruption again to the main thread."""
+    import sys
+    from nitsche.output import Interrupted, raise_interrupted, redeliver_ignored
+    monkeypatch.setattr(sys, "unraisablehook", redeliver_ignored)
+    previous = signal.signal(signal.SIGTERM, raise_interrupted)
+    try:
+        class Finalized:
+            def __del__(self):
+                raise_interrupted(signal.SIGTERM, None)  # as if SIGTERM arrived right here
+        with pytest.raises(Interrupted):
+            Finalized()  # its __del__ runs at once; the exception there is ignored ...
+            for _ in range(1000):  # ... and comes back at one of the next bytecodes
+                time.sleep(0.001)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
