@@ -90,6 +90,11 @@ def plot_solution(problem, result, path, title=""):
     for ax in axes[:len(shown)]:
         ax.set_xlabel("x")
         ax.set_ylabel("y")
+    return save_figure(fig, path, title)
+
+
+def save_figure(fig, path, title=""):
+    """Title, tight layout, PNG at 120 dpi, figure closed; returns the path."""
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -128,8 +128,7 @@ def theta_study(level, fine, top=(0.02, -0.03)):
 
 
 def plot_theta_study(rows, path, title=""):
-    import matplotlib
-    matplotlib.use("Agg")
+    from nitsche.plot import save_figure  # first: it selects the Agg backend
     import matplotlib.pyplot as plt
     fig, axes = plt.subplots(1, 2, figsize=(10, 4), sharey=True)
     for ax, law in zip(axes, STUDY_LAWS):
@@ -143,12 +142,7 @@ def plot_theta_study(rows, path, title=""):
         ax.grid(alpha=0.3, which="both")
         ax.legend()
     axes[0].set_ylabel("relative energy-norm error (missing: Newton failed)")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, title)
 
 
 def figures(problem, result, p, folder):
