@@ -3,7 +3,6 @@ path driver (step cutting, history, records) and its output (steps, VTU series, 
 import json
 import xml.etree.ElementTree as ET
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 from skfem import ElementTriP1, ElementTriP2, MeshTri

@@ -75,7 +75,6 @@ def test_stability_limits_follow_globals_read_by_called_functions_and_work_with_
 
 
 def test_fingerprint_of_recursive_functions_and_of_arrays_read_as_globals():
-    global SOURCE
     namespace = {}
     exec("def even(n):\n    return True if n == 0 else odd(n - 1)\n"
          "def odd(n):\n    return False if n == 0 else even(n - 1) and LEVEL > 0\n"

@@ -78,11 +78,11 @@ def test_nested_iteration_for_a_problem_of_ones_own():
         mesh = MeshTri.init_symmetric().refined(level + 2)
         u = ni.Field("u", mesh, ElementTriP1(), fixed="boundary")
         return ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) + 10.0 * u,
-                          [ni.Inequality(gap=lambda u: u + 0.1, multiplier=lambda u: 0.0 * u.value - 10.0,
+                          [ni.Inequality(gap=lambda u: u + 0.1, multiplier=lambda: -10.0,
                                          scaling=ni.Scaling(0.1, h_power=2), on=ni.cells(u))])
     runs = list(ni.nested(make, range(4)))
     assert [k for k, _, _ in runs] == [0, 1, 2, 3]
-    problem, result = runs[-1][1], runs[-1][2]
+    result = runs[-1][2]
     direct = make(3).minimize().check()
     assert result.converged and np.allclose(result.x, direct.x, atol=1e-10)
     assert result.iterations < direct.iterations

@@ -30,6 +30,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector, CellBasis
 
 import nitsche as ni
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE, ParameterError
+from nitsche.meshes import graded
 from nitsche.ops import dot, sym_grad
 from nitsche.supermesh import interface_report
 
@@ -94,21 +95,6 @@ def elastic(E, nu):
     return energy
 
 
-def graded(length, fine, n_fine, growth=1.3):
-    """0 = x_0 < ... < x_m = length: n_fine cells of size fine/n_fine, then cells
-    growing by `growth` (the last one stretched to end at `length`)."""
-    xs = list(np.linspace(0.0, fine, n_fine + 1))
-    dx = fine / n_fine
-    while xs[-1] + dx * growth < length:
-        dx *= growth
-        xs.append(xs[-1] + dx)
-    if length - xs[-1] < 0.5 * dx:
-        xs[-1] = length
-    else:
-        xs.append(length)
-    return np.array(xs)
-
-
 def _meshes(level, p):
     if p.setup == "punch":
         m1 = MeshTri.init_symmetric().refined(level + 2)
@@ -122,7 +108,7 @@ def _meshes(level, p):
         xs = graded(p.L, 0.1 * p.L, round(0.1 / p.hx), p.growth)
         ys = graded(p.L, 0.05 * p.L, round(0.05 / p.hy), p.growth)
         m1 = MeshTri.init_tensor(xs, -ys[::-1]).refined(level)
-        xs2 = xs if p.matching else graded(p.L, 0.1 * p.L, 3)
+        xs2 = xs if p.matching else graded(p.L, 0.1 * p.L, 3, 1.3)
         ys2 = ys[ys <= 0.5 * p.L + 1e-12]
         m2 = MeshTri.init_tensor(xs2, ys2).refined(level)
         m2 = m2.with_boundaries({"top": lambda x: x[1] > ys2[-1] - 1e-12})

@@ -29,7 +29,8 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector
 import nitsche as ni
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE, ParameterError
 from nitsche.ops import dot, tangent
-from nitsche.cases.elastic_contact import elastic, graded, stress
+from nitsche.cases.elastic_contact import elastic, stress
+from nitsche.meshes import graded
 
 NAME = "friction"
 SUMMARY = "Cattaneo-Mindlin: normal then tangential load with Coulomb friction, plane strain"
