@@ -67,6 +67,7 @@ def test_lifting_carries_a_large_boundary_move_into_the_interior():
 def test_compression_path_force_balance_and_compiles_once():
     case, problem, p = compression()
     problem.minimize()  # the rest state: compiles every kernel
+    alpha0 = problem.alpha0["contact"].copy()
     compiled, seconds = len(assembly._COMPILED), assembly.compile_seconds[0]
     path = ni.path(problem, **case.module.path(problem, p), quiet=True)
     assert path.converged, path.reason
@@ -83,6 +84,12 @@ def test_compression_path_force_balance_and_compiles_once():
         assert abs(R["reaction_x"]) < 1e-10 * abs(R["reaction_y"])  # frictionless, symmetric
     forces = [-s["reactions"]["u"]["top"]["reaction_y"] for s in path.steps]
     assert all(b > a for a, b in zip(forces, forces[1:]))
+    # 30 % with the defaults: J_h loses its convexity on the deformed body with the reference
+    # limits (alpha0 'auto'); the path halves alpha0 there and goes on
+    scale = [s["alpha0_scale"] for s in path.steps]
+    assert p.compression == 0.3 and p.alpha0 == "auto"
+    assert scale[0] == 1.0 and scale[-1] < 1.0 and scale == sorted(scale, reverse=True)
+    assert np.allclose(problem.alpha0["contact"], scale[-1] * alpha0)
 
 
 def test_a_step_too_large_is_cut_and_the_path_recovers():

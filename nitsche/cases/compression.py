@@ -31,9 +31,9 @@ PARAMETERS = {
     "R": (1.0, "radius of the half cylinder (its height)"),
     "compression": (0.3, "the press's final displacement, relative to R"),
     "steps": (15, "load steps (cut in half where Newton fails, regrown after successes)"),
-    "alpha0": ("0.2*limit", "Nitsche parameter (alpha = alpha0 h / E, h = cell diameter); "
-               "the limits are those of the reference state: 'auto' (half of them) loses the "
-               "convexity of J_h at about 25 % compression"),
+    "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h / E, h = cell diameter); the "
+               "limits are those of the reference state, and where J_h loses its convexity on "
+               "the deformed body (with 'auto' at about 20 % compression) the path halves alpha0"),
     "n": (8, "cells across the radius at level 0"),
 }
 RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "compression": Interval(0.0, 0.9),
