@@ -9,10 +9,11 @@ its arc touches the rigid plane y = -R at the start.  The energy is
 the contact is frictionless and written exactly for the plane (reference points X,
 current height X_y + u_y):
 
-    g = X_y + u_y + R >= 0,   lambda = -e_y . P(F) N,   alpha = alpha0 h / E,
+    g = X_y + u_y + R >= 0,   lambda = e_y . P(F) N,   alpha = alpha0 h / E,
 
-P = dW/dF the first Piola-Kirchhoff stress, N the reference outward normal (lambda is the
-pressure per reference length).  Force balance: the press's vertical reaction equals the
+P = dW/dF the first Piola-Kirchhoff stress, N the reference outward normal: P N is the
+traction the plane exerts on the body per reference length, and lambda its component
+along the plane's normal e_y, the contact pressure (-sigma_nn for a flat contact).  Force balance: the press's vertical reaction equals the
 contact force int lambda_N (a vertical translation changes g by 1 and nothing else).
 """
 import numpy as np
@@ -69,7 +70,7 @@ def build(level, degree, p):
         return x[1] + u.value[1] + p.R
 
     def multiplier(u, n):
-        return -jnp.dot(first_piola(neo_hookean, deformation_gradient(u), mu, lam), n)[1]
+        return jnp.dot(first_piola(neo_hookean, deformation_gradient(u), mu, lam), n)[1]
 
     contact = ni.Inequality(gap, multiplier, ni.Scaling(p.alpha0, h_power=1, stiffness=p.E),
                             ni.facets(u, "arc", intorder=2 * degree + 2), name="contact")
