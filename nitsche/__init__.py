@@ -20,7 +20,7 @@ if _cache != "off":
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
-from .fields import Field, history  # noqa: E402
+from .fields import Field, history, coordinates  # noqa: E402
 from .measures import cells, facets, interface  # noqa: E402
 from .functional import (Scaling, Integral, Residual, Equality, Inequality, Penalty, Tresca,  # noqa: E402
                          Coulomb, Constraint)
@@ -37,7 +37,7 @@ def minimize(energy, fields, constraints=(), x0=None, **options):
     return Problem(fields, energy, constraints).minimize(x0, **options)
 
 
-__all__ = ["Field", "history", "cells", "facets", "interface", "Scaling", "Integral", "Residual",
+__all__ = ["Field", "history", "coordinates", "cells", "facets", "interface", "Scaling", "Integral", "Residual",
            "Equality", "Inequality", "Penalty", "Tresca", "Coulomb", "Constraint", "Problem", "Result",
            "NotConverged", "StabilityWarning", "FeasibilityWarning",
            "DerivativeError", "ops", "minimize", "nested", "prolongate", "path", "Path"]

@@ -180,7 +180,8 @@ class Term:
             self.T.append(T if kept.size == T.shape[2] else np.ascontiguousarray(T[:, :, kept]))
             self.kept.append(tuple(kept.tolist()))
             self.dofs.append(dofs)
-        self.field_dofs = [d + offsets[f.name] for d, f in zip(self.dofs, self.fields)]
+        self.offsets = [offsets[f.name] for f in self.fields]
+        self.field_dofs = [d + o for d, o in zip(self.dofs, self.offsets)]
         self.global_dofs = np.concatenate(self.field_dofs, axis=1)
         self.W = W
         self.x = np.ascontiguousarray(np.moveaxis(measure.points, 0, -1)) \
@@ -225,6 +226,20 @@ class Term:
             if parts:
                 layout.append((f.name, tuple(parts), tuple(sorted(used[f.name]))))
         return layout
+
+    def retabulate(self):
+        """Tabulate again the fields that live on another mesh than the measure's (after an
+        interface changed its pairing, nitsche.sliding), in place: terms made by
+        with_pointwise share the new tabulations, and the shapes, hence the kernels, stay."""
+        for i, ((name, parts, _), f) in enumerate(zip(self.layout, self.fields)):
+            if f.mesh is self.measure.mesh:
+                continue
+            T, dofs = self.measure.tabulation(f, [o for o, _, _, _ in parts])
+            kept = list(self.kept[i])
+            self.T[i] = T if len(kept) == T.shape[2] else np.ascontiguousarray(T[:, :, kept])
+            self.dofs[i] = dofs
+            self.field_dofs[i] = dofs + self.offsets[i]
+        self.global_dofs[...] = np.concatenate(self.field_dofs, axis=1)
 
     def with_pointwise(self, pointwise):
         """The same term (same tabulations) with another density (not a residual) of the
@@ -486,23 +501,49 @@ class Assembler:
 
     def __init__(self, terms, ndofs):
         self.terms, self.ndofs = terms, ndofs
+        self._build_pattern()
+
+    @staticmethod
+    def _keys(dofs, ndofs):
+        """row * ndofs + col of every entry of the element matrices on dofs (E, k)."""
+        return (np.repeat(dofs, dofs.shape[1], axis=1) * np.int64(ndofs)
+                + np.tile(dofs, (1, dofs.shape[1]))).ravel()
+
+    def _build_pattern(self, keep=None):
+        """The CSR pattern of all terms' element matrices (and the entries `keep`: sorted
+        keys of an earlier pattern, so that it only grows) and each term's scatter map."""
+        ndofs = self.ndofs
         distinct = []  # terms on the same elements share their local-to-global map
-        for t in terms:
+        for t in self.terms:
             if not any(d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs)
                        for d in distinct):
                 distinct.append(t.global_dofs)
-        keys = [(np.repeat(d, d.shape[1], axis=1) * np.int64(ndofs)
-                 + np.tile(d, (1, d.shape[1]))).ravel() for d in distinct]
-        rows, cols = np.divmod(np.concatenate(keys), ndofs)
+        keys = [self._keys(d, ndofs) for d in distinct]
+        rows, cols = np.divmod(np.concatenate(keys + ([] if keep is None else [keep])), ndofs)
         pattern = sp.coo_matrix((np.ones(rows.size, np.int8), (rows, cols)), shape=(ndofs, ndofs)).tocsr()
         pattern.sum_duplicates()
         self.indices, self.indptr = pattern.indices, pattern.indptr
         self.nnz = pattern.nnz
-        sorted_keys = np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs + self.indices
-        positions = [np.searchsorted(sorted_keys, k) for k in keys]
+        self.sorted_keys = np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs + self.indices
+        positions = [np.searchsorted(self.sorted_keys, k) for k in keys]
         self.scatter = [next(p for d, p in zip(distinct, positions) if d.shape == t.global_dofs.shape
-                             and np.array_equal(d, t.global_dofs)) for t in terms]
-        self._quadratics = {}
+                             and np.array_equal(d, t.global_dofs)) for t in self.terms]
+        self._quadratics = {}  # assembled on this pattern
+
+    def refresh(self, terms):
+        """After the given terms changed their global dofs (an interface paired anew): their
+        scatter maps, within the pattern if it holds their entries (returns False), else on a
+        pattern grown to hold them (returns True: the matrix structure changed)."""
+        for t in terms:
+            keys = self._keys(t.global_dofs, self.ndofs)
+            pos = np.minimum(np.searchsorted(self.sorted_keys, keys), self.nnz - 1)
+            if not np.array_equal(self.sorted_keys[pos], keys):
+                self._build_pattern(keep=self.sorted_keys)
+                return True
+            for k, other in enumerate(self.terms):
+                if other is t:
+                    self.scatter[k] = pos
+        return False
 
     def _quadratic(self, t, idx):
         """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""

@@ -225,3 +225,11 @@ def history(field, name=None):
                 fixed=np.arange(field.ndofs), intorder=field.intorder)
     old.history_of = field.name  # nitsche.path moves it to each step's start
     return old
+
+
+def coordinates(field, name=None):
+    """A field of data: the reference coordinates X on the mesh of a vector Lagrange `field`
+    (default name X_FIELD), e.g. the other body's reference point X_m on an interface, whose
+    current position is X_m + u(X_m)."""
+    return Field(name or f"X_{field.name}", field.mesh, field.element,
+                 fixed=np.arange(field.ndofs), value=lambda x: x, intorder=field.intorder)

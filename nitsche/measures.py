@@ -348,7 +348,7 @@ class Interface:
 
 
 def interface(field, where=None, to_other=None, intorder=None, other=None, pairing="auto",
-              reach=None, weight=None):
+              reach=None, weight=None, onto=None):
     """An interface measure on the body of `field`: its boundary facets `where` (a
     boundary name, a predicate on facet midpoints, or facet indices), or where='cells'
     for all its cells (a membrane lying on another body); the normal n is the outward
@@ -362,9 +362,16 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     coarser nested other body); 'auto': the supermesh unless the meshes match on the
     interface, where both are exact and 'points' keeps the facets' own quadrature.
     Without `other` the pairing is 'points'.  reach: see nitsche.supermesh.Supermesh.
-    weight w(x) as for cells."""
-    if pairing not in ("auto", "supermesh", "points"):
-        raise ValueError(f"pairing must be 'auto', 'supermesh' or 'points', not {pairing!r}")
+    'current': each point is paired with the closest point of the other body's current
+    boundary `onto` (a boundary name) at every Newton iterate, for large sliding
+    (nitsche.sliding; 2D).  weight w(x) as for cells."""
+    if pairing not in ("auto", "supermesh", "points", "current"):
+        raise ValueError(f"pairing must be 'auto', 'supermesh', 'points' or 'current', not {pairing!r}")
+    if pairing == "current":
+        from .sliding import sliding
+        if other is None:
+            raise ValueError("pairing='current' needs the other body's field: other=...")
+        return sliding(field, where, other, onto, intorder=intorder, weight=weight)
     if other is None and pairing == "supermesh":
         raise ValueError("pairing='supermesh' needs the other body's field: other=...")
     on_cells = isinstance(where, str) and where == "cells"

@@ -226,6 +226,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     shift, shifts = SHIFT_START, []  # inertia correction: the next shift, and those taken
     for it in range(maxiter + 1):
         t = time.perf_counter()
+        if getattr(problem, "sliding", None) and problem.update_pairing(x):  # a new matrix structure
+            lin = make_solver(solver, free.size, problem.dim, problem.symmetric)
         E, g, A = problem.newton_system(x)
         timings["assembly"] += time.perf_counter() - t
         if not np.isfinite(E) or not np.all(np.isfinite(g)):

@@ -72,6 +72,7 @@ class Problem:
         self.value_terms = [t.with_pointwise(c.values())
                             for c, t in zip(self.constraints, self.constraint_terms)]
         self.assembler = Assembler(self.energy_terms + self.constraint_terms, self.ndofs)
+        self.sliding = [i for i, c in enumerate(self.constraints) if hasattr(c.on, "pair")]
         self._free_block()
         self._release_measures()
 
@@ -315,6 +316,20 @@ class Problem:
         """The free-free block of the CSR matrix with the assembler's pattern and `data`."""
         n = self.free.size
         return sp.csr_matrix((data[self._sel], self._ff_indices, self._ff_indptr), shape=(n, n))
+
+    def update_pairing(self, x):
+        """Pair the points of every interface with pairing='current' anew at x (nitsche.sliding)
+        and tabulate the other body there; True if the Newton matrix's structure changed."""
+        grew = False
+        parts = self.split(x) if self.sliding else {}
+        for i in self.sliding:
+            m = self.constraints[i].on
+            m.pair(parts[m.mine.name], parts[m.other.name])
+            self.constraint_terms[i].retabulate()  # value_terms[i] shares its tabulations
+            grew = self.assembler.refresh([self.constraint_terms[i]]) or grew
+        if grew:
+            self._free_block()
+        return grew
 
     def newton_system(self, x):
         """J_h(x), its gradient on the free dofs and the free-free block of the Hessian (for a
