@@ -219,9 +219,10 @@ class AMGCG:
             x, info, its = self._cg(A, b, tol)
             fresh = its
         else:  # the previous hierarchy, for a bounded number of iterations
-            limit = int(self.rebuild_factor * self.base_rate * decades) + self.slack
+            limit = (int(self.rebuild_factor * self.base_rate * decades) + self.slack
+                     if self.base_rate is not None else self.maxiter)  # (built by is_positive_definite)
             x, info, its = self._cg(A, b, tol, maxiter=limit)
-            fresh = None
+            fresh = its if self.base_rate is None else None
             if info != 0:
                 self._build(A)
                 x, info, fresh = self._cg(A, b, tol, x0=x)

@@ -6,6 +6,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 
 from .linalg import IndefiniteHessian, NotSolved, make_solver
 from . import assembly
@@ -16,6 +17,9 @@ STAGNATION_STEP = 1e-8  # relative Newton step accepted as converged once the re
 FORCING_MAX = 1e-2      # the loosest relative accuracy asked of an iterative linear solve
 ROUNDOFF = 1e-13        # relative accuracy of a gradient summed from terms (about 500 machine epsilons)
 SOLVE_FAILURE = 0.5     # a Newton step with |A dx + g| above this fraction of |g| was not solved
+SHIFT_START = 1e-4      # the first relative diagonal shift tried on an indefinite Newton matrix
+DIVERGED = 1e3         # after convexified steps, a residual this many times the first one: diverged
+SHIFT_MAX = 1e8         # shifts beyond this: the Newton matrix is hopeless (a NaN, a huge negative entry)
 UNBOUNDED = ("J_h looks unbounded below or singular (a field or rigid-body mode without support, "
              "a load no support balances, a non-convex energy, or alpha0 above its stability "
              "limit): add supports, balance the loads, start nearer a minimum (x0) or lower alpha0")
@@ -54,6 +58,23 @@ def residual_search(problem, x, dx, E, res, slope):
 
 
 residual_search.merit = "the residual norm"
+
+
+def convexified_step(lin, A, g, shift):
+    """Inertia correction of an indefinite Newton matrix: dx = -(A + tau D)^-1 g, D = diag|A|
+    (floored at 1e-12 of its largest entry), for the first tau = shift, 10 shift, ... up to
+    SHIFT_MAX with A + tau D positive definite: the Newton step of a convex model of J_h,
+    a descent direction that the line search then shortens.  Returns (dx, tau, A + tau D)."""
+    d = np.abs(A.diagonal())
+    D = sp.diags(np.maximum(d, 1e-12 * d.max()), format="csc")
+    tau = shift
+    while tau <= SHIFT_MAX:
+        M = (A + tau * D).tocsc()
+        M.sort_indices()
+        if lin.is_positive_definite(M):
+            return lin.solve(M, -g, rtol=0.0), tau, M
+        tau *= 10.0
+    raise IndefiniteHessian(f"A + tau diag|A| is indefinite for every tau up to {SHIFT_MAX:.0e}")
 
 
 def lifted(problem, x0, plain, lin):
@@ -129,6 +150,7 @@ class Result:
     constraints: dict = field(default_factory=dict)
     problem: object = None
     ranks: int = 1  # MPI ranks of the run (nitsche.distributed)
+    shifts: list = field(default_factory=list)  # tau of each step taken on A + tau diag|A|
 
     def field(self, name):
         """The dof vector of one field."""
@@ -146,7 +168,8 @@ class Result:
         lines = [f"Newton: {'converged' if self.converged else 'NOT CONVERGED'} ({self.reason}) "
                  f"in {self.iterations} iterations, solver {self.solver}",
                  "  residuals: " + " ".join(f"{r:.2e}" for r in self.residuals),
-                 f"  energy J_h = {self.energy:.12g}",
+                 f"  energy J_h = {self.energy:.12g}"
+                 + (f", {len(self.shifts)} convexified steps (J_h not convex there)" if self.shifts else ""),
                  f"  active points {self.active_count}, contact measure {self.contact_measure:.6g}, "
                  f"largest violation {self.max_violation:.3e}"
                  + ("" if self.feasible else ", INFEASIBLE: " + ", ".join(
@@ -200,6 +223,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     if ref is None:  # e.g. a density undefined at zero, or nothing but zeros: scale by x0
         ref = np.linalg.norm(g0[free]) or 1.0
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
+    shift, shifts = SHIFT_START, []  # inertia correction: the next shift, and those taken
     for it in range(maxiter + 1):
         t = time.perf_counter()
         E, g, A = problem.newton_system(x)
@@ -215,21 +239,39 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         if res <= rtol * ref:
             converged, reason = True, f"relative residual {res / ref:.1e} <= {rtol:.0e}"
             break
+        if shifts and res / ref > DIVERGED * max(residuals[0], 1.0):
+            reason = (f"Newton diverged on a non-convex J_h: the residual grew to {res / ref:.1e} "
+                      f"along convexified steps by iteration {it}: {UNBOUNDED}")
+            break
         if it == maxiter:
             reason = f"reached the iteration limit {maxiter} with relative residual {res / ref:.1e}"
             break
         t = time.perf_counter()
+        convexified = False
         try:
-            dx = lin.solve(A, -g, rtol=forcing(res / ref, rtol))
+            dx, M = lin.solve(A, -g, rtol=forcing(res / ref, rtol)), A
+            convexified = problem.symmetric and not float(g @ dx) < 0
         except IndefiniteHessian as e:
-            reason = f"the Hessian of J_h is not positive definite at iteration {it} ({e}): {UNBOUNDED}"
-            break
+            if not problem.symmetric:
+                reason = f"the Newton system could not be solved at iteration {it} ({e}): {UNBOUNDED}"
+                timings["solve"] += time.perf_counter() - t
+                break
+            convexified = True
         except NotSolved as e:
             reason = f"the Newton system could not be solved at iteration {it} ({e}): {UNBOUNDED}"
-            break
-        finally:
             timings["solve"] += time.perf_counter() - t
-        solve_residual = np.linalg.norm(A @ dx + g) / res
+            break
+        if convexified:  # J_h is not convex here: the step of a convex model instead
+            try:
+                dx, tau, M = convexified_step(lin, A, g, shift)
+            except (IndefiniteHessian, NotSolved) as e:
+                reason = (f"the Hessian of J_h is not positive definite at iteration {it} and no "
+                          f"diagonal shift helps ({e}): {UNBOUNDED}")
+                timings["solve"] += time.perf_counter() - t
+                break
+            shift, shifts = max(SHIFT_START, tau / 10), shifts + [tau]
+        timings["solve"] += time.perf_counter() - t
+        solve_residual = np.linalg.norm(M @ dx + g) / res
         if not solve_residual <= SOLVE_FAILURE:
             reason = (f"the Newton matrix is singular to working precision at iteration {it} "
                       f"(step {np.linalg.norm(dx):.3g}, relative residual of its solve "
@@ -239,7 +281,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         if problem.symmetric and not slope < 0:
             reason = f"the Newton direction is not a descent direction at iteration {it}: {UNBOUNDED}"
             break
-        if (len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
+        if (not convexified and len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
                 and np.linalg.norm(dx) <= STAGNATION_STEP * max(np.linalg.norm(x[free]), 1e-300)):
             # the residual no longer falls and the step is far below the discretization error:
             # round-off floor (e.g. third-derivative multipliers, alpha ~ h^3, on fine meshes,
@@ -261,11 +303,14 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             break
         timings["line_search"] += time.perf_counter() - t
         step, x = found
-        if step == 1.0 and np.linalg.norm(dx) <= 1e-13 * max(np.linalg.norm(x[free]), 1e-300):
+        if not convexified and step == 1.0 and np.linalg.norm(dx) <= 1e-13 * max(np.linalg.norm(x[free]), 1e-300):
             converged, reason = True, "full Newton step below round-off"
             it += 1
             residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
             break
+    if shifts and not converged:
+        reason += (f" (the Hessian of J_h was not positive definite at {len(shifts)} iterations, "
+                   f"which took shifted steps)")
     if converged and problem.symmetric:
         t = time.perf_counter()
         if not lin.is_positive_definite(A):
@@ -288,7 +333,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     return Result(x=x, converged=converged, reason=reason, iterations=it, residuals=residuals,
                   energy=problem.energy(x), seconds=seconds, timings=timings, solver=lin.name,
                   solver_stats=lin.stats(),
-                  constraints=report, problem=problem, ranks=getattr(problem, "ranks", 1),
+                  constraints=report, problem=problem, ranks=getattr(problem, "ranks", 1), shifts=shifts,
                   active_count=sum(r["active_count"] for r in report.values()),
                   contact_measure=sum(r["contact_measure"] for r in report.values()
                                       if r["kind"] != "equality"),

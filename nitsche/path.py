@@ -5,7 +5,10 @@ t)), history fields (ni.history) take the previous step's solution, and Newton s
 the previous solution with the increment of the prescribed values lifted into the
 interior (Problem.lift: H_ff dx_f = -H_fc dx_fixed).  A step whose Newton run fails is
 halved, down to min_step times its nominal length; after two successes in a row the step
-doubles again (up to the next listed time).
+doubles again (up to the next listed time).  A step whose Newton run met a non-convex J_h
+(Result.shifts: convexified steps) and failed, for the second time since alpha0 last changed,
+is retried with alpha0 halved on every constraint: the stability limits of alpha0 are those of the reference configuration, and a
+deformed one may need less (at most ALPHA0_HALVINGS times along a path).
 """
 import sys
 import time
@@ -16,6 +19,7 @@ import numpy as np
 from .reactions import reactions
 
 COMPONENTS = ("reaction_x", "reaction_y", "reaction_z")
+ALPHA0_HALVINGS = 6
 
 
 @dataclass
@@ -57,7 +61,8 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
     min_step times the listed interval, and regrow after two successes.  One line per step
     on stderr unless quiet; each step lifts (newton_options' `lift` is ignored).  Returns
     a Path; each record: step, time, increment, iterations, converged, cuts,
-    contact_measure, reactions, energy, seconds."""
+    contact_measure, reactions, energy, seconds, alpha0_scale (alpha0 relative to the
+    problem's initial one)."""
     newton_options.pop("lift", None)
     times = np.asarray(times, dtype=float).ravel()
     if times.size == 0 or not np.all(np.diff(np.concatenate([[start], times])) > 0):
@@ -78,7 +83,7 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
     if x0 is None:
         x[problem.free] = 0.0
     out, t, previous = Path(), start, start
-    dt, successes, cuts = None, 0, 0
+    dt, successes, cuts, alpha0_scale, nonconvex = None, 0, 0, 1.0, 0
     for target in times:
         nominal = target - previous
         while t < target - 1e-12 * nominal:
@@ -101,7 +106,7 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
                                       iterations=result.iterations, converged=True, cuts=cuts,
                                       contact_measure=result.contact_measure,
                                       reactions=step_reactions(problem, x), energy=result.energy,
-                                      seconds=result.seconds))
+                                      seconds=result.seconds, alpha0_scale=alpha0_scale))
                 if not quiet:
                     print(f"step {len(out.steps)}: t = {t:.6g} (+{h:.3g}{f', {cuts} cuts' if cuts else ''}): "
                           f"{result.iterations} Newton iterations, contact measure "
@@ -109,6 +114,14 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
                 successes, cuts = successes + 1, 0
                 if dt is not None and successes >= 2:
                     dt, successes = (None if 2 * dt >= nominal else 2 * dt), 0
+                continue
+            nonconvex += bool(result is not None and result.shifts)
+            if nonconvex >= 2 and alpha0_scale > 0.5 ** ALPHA0_HALVINGS and problem.scale_alpha0(0.5):
+                alpha0_scale, nonconvex = alpha0_scale / 2, 0
+                if not quiet:
+                    print(f"step {len(out.steps) + 1}: t = {t + h:.6g} failed on a non-convex J_h "
+                          f"({reason}); alpha0 halved (now {alpha0_scale:g} of its initial value)",
+                          file=sys.stderr, flush=True)
                 continue
             cuts, successes, dt = cuts + 1, 0, h / 2
             if not quiet:

@@ -120,12 +120,12 @@ class Problem:
         self.alpha0_limits = {c.name: float(self.limits[c.name].min()) for c in self.constraints
                               if c.multiplier is not None}
 
-    def local_limits(self, constraints=None):
+    def local_limits(self, constraints=None, x=None):
         """{constraint name: the element-local stability limit of alpha0 on each element}
         (nitsche.stability): batched eigenproblems of the cells that own the elements."""
         from .stability import local_limits
         names = {c.name for c in (self.constraints if constraints is None else constraints)}
-        x = self.initial(None)
+        x = self.initial(None) if x is None else x
         free = np.zeros(self.ndofs, bool)
         free[self.free] = True
         out = {}
@@ -247,14 +247,35 @@ class Problem:
                                  f"{list(self.parameters.names)}")
             self.parameters.values[self.parameters.names.index(k)] = float(v)
 
+    def scale_alpha0(self, factor):
+        """alpha0 <- factor alpha0 on every element of the constraints whose terms are not
+        quadratic forms (those are assembled once, with their alpha0): e.g. where J_h has
+        lost its convexity on a deformed configuration.  Returns the names scaled."""
+        names = []
+        for i, (c, t) in enumerate(zip(self.constraints, self.constraint_terms)):
+            if c.multiplier is not None and not t.is_quadratic:
+                self._set_alpha0(i, self.alpha0[c.name] * factor)
+                names.append(c.name)
+        return names
+
+    def _set_alpha0(self, i, alpha0):
+        """alpha0 per element of constraint i, in its term and in its value term."""
+        self.alpha0[self.constraints[i].name] = alpha0
+        self.constraint_terms[i].alpha0 = self.value_terms[i].alpha0 = alpha0
+
     def state(self):
-        """The data that changes along a load path: parameter values and prescribed values."""
-        return dict(zip(self.parameters.names, self.parameters.values.tolist())), self.fixed_values.copy()
+        """The data that changes along a load path: parameter values, prescribed values and
+        alpha0 per element of each constraint."""
+        return (dict(zip(self.parameters.names, self.parameters.values.tolist())),
+                self.fixed_values.copy(), {k: v.copy() for k, v in self.alpha0.items()})
 
     def set_state(self, state):
         """Restore a state() (e.g. to evaluate a step of a path after it has been solved)."""
         self.set_parameters(**state[0])
         self.fixed_values[:] = state[1]
+        for i, (c, t) in enumerate(zip(self.constraints, self.constraint_terms)):
+            if c.name in state[2] and t.alpha0 is not None:
+                self._set_alpha0(i, state[2][c.name].copy())
 
     def join(self, parts):
         return np.concatenate([np.asarray(parts[f.name], dtype=float) for f in self.fields])

@@ -67,6 +67,7 @@ def test_lifting_carries_a_large_boundary_move_into_the_interior():
 def test_compression_path_force_balance_and_compiles_once():
     case, problem, p = compression()
     problem.minimize()  # the rest state: compiles every kernel
+    alpha0 = problem.alpha0["contact"].copy()
     compiled, seconds = len(assembly._COMPILED), assembly.compile_seconds[0]
     path = ni.path(problem, **case.module.path(problem, p), quiet=True)
     assert path.converged, path.reason
@@ -83,10 +84,28 @@ def test_compression_path_force_balance_and_compiles_once():
         assert abs(R["reaction_x"]) < 1e-10 * abs(R["reaction_y"])  # frictionless, symmetric
     forces = [-s["reactions"]["u"]["top"]["reaction_y"] for s in path.steps]
     assert all(b > a for a, b in zip(forces, forces[1:]))
+    # 30 % with the defaults (alpha0 'auto'), no step cut, alpha0 unchanged
+    assert p.compression == 0.3 and p.alpha0 == "auto"
+    assert path.cuts == 0 and all(s["alpha0_scale"] == 1.0 for s in path.steps)
+    assert np.array_equal(problem.alpha0["contact"], alpha0)
+
+
+def test_a_path_on_a_non_convex_j_h_halves_alpha0_and_goes_on():
+    """alpha0 at twice the stability limit: Newton meets an indefinite J_h, takes convexified
+    steps and fails; after two such failures the path halves alpha0 and reaches the end."""
+    with pytest.warns(ni.StabilityWarning):
+        case, problem, p = compression(alpha0="2*limit")
+    alpha0 = problem.alpha0["contact"].copy()
+    path = ni.path(problem, **case.module.path(problem, p), quiet=True)
+    assert path.converged and path.steps[-1]["time"] == pytest.approx(1.0)
+    scale = [s["alpha0_scale"] for s in path.steps]
+    assert scale == sorted(scale, reverse=True) and scale[-1] <= 0.5
+    assert np.allclose(problem.alpha0["contact"], scale[-1] * alpha0)
+    assert np.all(problem.alpha0["contact"] < problem.limits["contact"])
 
 
 def test_a_step_too_large_is_cut_and_the_path_recovers():
-    case, problem, p = compression(steps=1, compression=0.25)
+    case, problem, p = compression(steps=1, compression=0.3)
     path = ni.path(problem, **case.module.path(problem, p), quiet=True)
     assert path.converged and path.cuts >= 1
     assert path.steps[-1]["time"] == pytest.approx(1.0)

@@ -64,6 +64,20 @@ def test_a_double_well_started_at_its_saddle_is_not_converged(solver):
     assert r.converged and np.allclose(r.x, 1.0)
 
 
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_an_indefinite_hessian_takes_convexified_steps_to_a_minimum(solver):
+    """From u = 0.2 (J'' = 12 u^2 - 4 < 0 on the whole mesh) Newton's own step points to the
+    saddle; shifted steps A + tau diag|A| (inertia correction) reach the well at u = 1."""
+    u = membrane(fixed=None)
+    energy = lambda u: (u.value ** 2 - 1) ** 2 + 1e-3 * dot(grad(u), grad(u))
+    r = ni.minimize(energy, [u], x0=np.full(u.ndofs, 0.2), solver=solver)
+    assert r.converged and np.allclose(r.x, 1.0), r.reason
+    assert len(r.shifts) >= 1 and all(t > 0 for t in r.shifts)
+    assert "convexified steps" in r.report()
+    # a convex problem takes none
+    assert ni.minimize(lambda u: 0.5 * dot(grad(u), grad(u)) - u, [membrane()], solver=solver).shifts == []
+
+
 @pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
 def test_cholmod_rejects_an_indefinite_matrix_also_in_simplicial_ldlt():
     A = sp.csc_matrix(np.array([[-2.0, 0.5], [0.5, 1.0]]))

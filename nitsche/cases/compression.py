@@ -9,10 +9,11 @@ its arc touches the rigid plane y = -R at the start.  The energy is
 the contact is frictionless and written exactly for the plane (reference points X,
 current height X_y + u_y):
 
-    g = X_y + u_y + R >= 0,   lambda = -e_y . P(F) N,   alpha = alpha0 h / E,
+    g = X_y + u_y + R >= 0,   lambda = e_y . P(F) N,   alpha = alpha0 h / E,
 
-P = dW/dF the first Piola-Kirchhoff stress, N the reference outward normal (lambda is the
-pressure per reference length).  Force balance: the press's vertical reaction equals the
+P = dW/dF the first Piola-Kirchhoff stress, N the reference outward normal: P N is the
+traction the plane exerts on the body per reference length, and lambda its component
+along the plane's normal e_y, the contact pressure (-sigma_nn for a flat contact).  Force balance: the press's vertical reaction equals the
 contact force int lambda_N (a vertical translation changes g by 1 and nothing else).
 """
 import numpy as np
@@ -31,9 +32,9 @@ PARAMETERS = {
     "R": (1.0, "radius of the half cylinder (its height)"),
     "compression": (0.3, "the press's final displacement, relative to R"),
     "steps": (15, "load steps (cut in half where Newton fails, regrown after successes)"),
-    "alpha0": ("0.2*limit", "Nitsche parameter (alpha = alpha0 h / E, h = cell diameter); "
-               "the limits are those of the reference state: 'auto' (half of them) loses the "
-               "convexity of J_h at about 25 % compression"),
+    "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h / E, h = cell diameter); the "
+               "limits are those of the reference state, and where J_h loses its convexity on "
+               "the deformed body (with 'auto' at about 20 % compression) the path halves alpha0"),
     "n": (8, "cells across the radius at level 0"),
 }
 RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "compression": Interval(0.0, 0.9),
@@ -69,7 +70,7 @@ def build(level, degree, p):
         return x[1] + u.value[1] + p.R
 
     def multiplier(u, n):
-        return -jnp.dot(first_piola(neo_hookean, deformation_gradient(u), mu, lam), n)[1]
+        return jnp.dot(first_piola(neo_hookean, deformation_gradient(u), mu, lam), n)[1]
 
     contact = ni.Inequality(gap, multiplier, ni.Scaling(p.alpha0, h_power=1, stiffness=p.E),
                             ni.facets(u, "arc", intorder=2 * degree + 2), name="contact")
