@@ -29,8 +29,9 @@ from skfem import ElementTriP1, ElementTriP2, ElementVector, MeshTri
 
 import nitsche as ni
 from nitsche.case import Interval, POISSON, POSITIVE
-from nitsche.obstacles import contact, sphere, translated
+from nitsche.obstacles import contact, normal, sphere, translated
 from nitsche.ops import axisymmetric_deformation_gradient, neo_hookean
+from nitsche.quantities import quantity
 
 NAME = "indentation"
 SUMMARY = "rigid sphere pressed deep into a neo-Hookean block in load steps, axisymmetric, vs Hertz"
@@ -84,6 +85,11 @@ def ring(x):
     return 2 * np.pi * x[0]
 
 
+def obstacle(p):
+    """The sphere moved down by d: phi(y, d) = |y - (0, R - d)| - R."""
+    return translated(sphere((0.0, p.R), p.R), (0.0, -1.0))
+
+
 def build(level, degree, p):
     h_min = 0.5 * p.grading * np.sqrt(p.R * first_depth(p))
     mesh = graded_block(p.size * p.R, p.grading, h_min).refined(level)
@@ -96,8 +102,7 @@ def build(level, degree, p):
 
     energy = ni.Integral(lambda u, x: W(axisymmetric_deformation_gradient(u, x)),
                          ni.cells(u, intorder=2 * degree, weight=ring))
-    ball = translated(sphere((0.0, p.R), p.R), (0.0, -1.0))  # moved down by d
-    gap, pressure = contact(ball, W, parameters=("d",), axisymmetric=True)
+    gap, pressure = contact(obstacle(p), W, parameters=("d",), axisymmetric=True)
     sphere_contact = ni.Inequality(gap, pressure, ni.Scaling(p.alpha0, h_power=1, stiffness=p.E),
                                    ni.facets(u, "top", intorder=2 * degree + 2, weight=ring),
                                    name="sphere")
@@ -117,15 +122,19 @@ def hertz(p, d):
 
 
 def force_depth(problem, p):
-    """Per accepted step: depth d, contact force int lambda_N, the bottom's reaction
-    (pushing up), Hertz's force and the contact force's relative difference to it."""
+    """Per accepted step: the depth d, the contact force (its vertical resultant
+    int lambda_N (-n_phi . e_z), pushing the block down), the bottom's reaction (pushing
+    it up), Hertz's force and the contact force's relative difference to it."""
+    ball, on = obstacle(p), problem.constraints[0].on
     rows = []
     for k, s in enumerate(problem.path.steps[:len(problem.path.results)]):
         x = problem.path.at(problem, k)
         d = problem.state()[0]["d"]
-        force = problem.constraint_report(x)["sphere"]["total_multiplier"]
-        rows.append(dict(depth=d, force=force, reaction=-s["reactions"]["u"]["bottom"]["reaction_y"],
-                         hertz=float(hertz(p, d)), hertz_difference=force / hertz(p, d) - 1,
+        n_z = quantity(problem, x, lambda u, x, d: normal(ball, x + u.value, d)[1], on=on)[0]
+        v = problem.constraint_values(x)["sphere"]
+        force = float(-(v["W"] * v["multiplier"] * n_z).sum())
+        rows.append(dict(depth=d, force=force, reaction=s["reactions"]["u"]["bottom"]["reaction_y"],
+                         hertz=float(hertz(p, d)), hertz_difference=float(force / hertz(p, d) - 1),
                          iterations=s["iterations"]))
     return rows
 
