@@ -16,9 +16,10 @@ compiles once.  Contact in the current configuration (nitsche.obstacles):
 
 n_phi the sphere's outward normal at the current point, P = dW/dF, N the reference normal.
 Hertz (small depth, half-space, E* = E / (1 - nu^2)): F = 4/3 E* R^(1/2) d^(3/2), contact
-radius a = sqrt(R d).  The mesh is graded: cells of diameter `grading` times their
-distance from the first contact point, at least `grading` a_1 / 2 (a_1 Hertz's radius at
-the first step).  Force balance: the bottom's vertical reaction equals the contact force
+radius a = sqrt(R d).  The mesh is graded: at level 0 cells of diameter `grading` times
+their distance from the first contact point, at least `grading` a_1 / 2 (a_1 Hertz's radius
+at the first step); each level halves them (level 2, the command line's default, is the
+shipped mesh: a quarter of the distance).  Force balance: the bottom's vertical reaction equals the contact force
 int lambda_N (a vertical translation changes g by n_phi . e_z and the energy by nothing;
 the axis and the free side carry no vertical force).
 """
@@ -42,13 +43,14 @@ PARAMETERS = {
     "depth": (0.3, "the final indentation depth, relative to R"),
     "steps": (12, "load steps: depths depth R (k/steps)^2 (cut in half where Newton fails)"),
     "size": (20.0, "the block's radius and height, relative to R"),
-    "grading": (0.25, "cell diameter over the distance from the first contact point (level 0)"),
+    "grading": (1.0, "cell diameter over the distance from the first contact point at level 0 "
+                "(halved by each level)"),
     "alpha0": ("0.2*limit", "Nitsche parameter (alpha = alpha0 h / E, h = cell diameter); "
                "the limits are those of the reference state"),
 }
 RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "depth": Interval(0.0, 0.9),
           "steps": Interval(1.0, closed_lo=True), "size": Interval(2.0),
-          "grading": Interval(0.0, 1.0)}
+          "grading": Interval(0.0, 2.0, closed_hi=True)}
 DEGREES = (2, 1)
 PAPER = [dict(command="run", degree=2, level=0, fast=dict(level=0))]
 HERTZ_DEPTH = 0.01  # depths d <= HERTZ_DEPTH R count as the small-depth end in reports
@@ -150,20 +152,25 @@ def report(problem, result, p):
 
 
 def figures(problem, result, p, folder):
-    """force_depth.png: the contact force and the bottom's reaction against the depth,
-    with Hertz's force."""
+    """force_depth.png: the contact force and the bottom's reaction against the depth with
+    Hertz's force, and the contact force over Hertz's (log depth)."""
     import matplotlib.pyplot as plt
     from nitsche.plot import save_figure
     rows = force_depth(problem, p)
-    d = np.array([0.0] + [r["depth"] for r in rows])
-    fig, ax = plt.subplots(figsize=(6, 4.2))
-    ax.plot(d / p.R, [0.0] + [r["force"] for r in rows], "o-", ms=4, label="contact force")
-    ax.plot(d / p.R, [0.0] + [r["reaction"] for r in rows], "x", ms=6, label="bottom reaction")
-    fine = np.linspace(0, d[-1], 200)
+    d = np.array([r["depth"] for r in rows]) / p.R
+    fig, (ax, rel) = plt.subplots(1, 2, figsize=(10, 4.2))
+    ax.plot(np.r_[0, d], [0.0] + [r["force"] for r in rows], "o-", ms=4, label="contact force")
+    ax.plot(d, [r["reaction"] for r in rows], "x", ms=6, label="bottom reaction")
+    fine = np.linspace(0, d[-1], 200) * p.R
     ax.plot(fine / p.R, hertz(p, fine), "k--", lw=1, label="Hertz $4/3\\, E^* R^{1/2} d^{3/2}$")
     ax.set_xlabel("depth d / R")
     ax.set_ylabel("force")
-    ax.grid(alpha=0.3)
     ax.legend()
+    rel.semilogx(d, [r["force"] / r["hertz"] for r in rows], "o-", ms=4)
+    rel.axhline(1.0, color="k", ls="--", lw=1)
+    rel.set_xlabel("depth d / R")
+    rel.set_ylabel("contact force / Hertz")
+    for a in (ax, rel):
+        a.grid(alpha=0.3, which="both")
     path = os.path.join(folder, "force_depth.png")
-    return [save_figure(fig, path, f"indentation, neo-Hookean, nu = {p.nu:g}")]
+    return [save_figure(fig, path, f"indentation: neo-Hookean block (nu = {p.nu:g}), rigid sphere")]
