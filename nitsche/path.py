@@ -4,8 +4,9 @@ At time t the prescribed data are set (the run-time parameter `t` and/or set_ste
 t)), history fields (ni.history) take the previous step's solution, and Newton starts from
 the previous solution with the increment of the prescribed values lifted into the
 interior (Problem.lift: H_ff dx_f = -H_fc dx_fixed) and, where run-time parameters
-changed, the first-order change of the solution added (`predicted`, a tangent predictor).  A step whose Newton run fails is
-halved, down to min_step times its nominal length; after two successes in a row the step
+changed, the first-order change of the solution added (`predicted`, a tangent
+predictor).  A step whose Newton run fails is halved, down to min_step times its
+nominal length; after two successes in a row the step
 doubles again (up to the next listed time).  A step whose Newton run met a non-convex J_h
 (Result.shifts: convexified steps) and failed, for the second time since alpha0 last changed,
 is retried with alpha0 halved on every constraint: the stability limits of alpha0 are those of the reference configuration, and a

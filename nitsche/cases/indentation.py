@@ -19,9 +19,10 @@ Hertz (small depth, half-space, E* = E / (1 - nu^2)): F = 4/3 E* R^(1/2) d^(3/2)
 radius a = sqrt(R d).  The mesh is graded: at level 0 cells of diameter `grading` times
 their distance from the first contact point, at least `grading` a_1 / 2 (a_1 Hertz's radius
 at the first step); each level halves them (level 2, the command line's default, is the
-shipped mesh: a quarter of the distance).  Force balance: the bottom's vertical reaction equals the contact force
-int lambda_N (a vertical translation changes g by n_phi . e_z and the energy by nothing;
-the axis and the free side carry no vertical force).
+shipped mesh: a quarter of the distance).  Force balance: the bottom's vertical
+reaction equals the contact force, the vertical resultant int lambda_N (-n_phi . e_z) (a
+vertical translation changes g by n_phi . e_z and the energy by nothing; the axis and the
+free side carry no vertical force), up to int alpha (lambda_N - lambda) Dlambda[e_z].
 """
 import os
 
@@ -52,7 +53,7 @@ RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "depth": Interval(0.0, 0.
           "steps": Interval(1.0, closed_lo=True), "size": Interval(2.0),
           "grading": Interval(0.0, 2.0, closed_hi=True)}
 DEGREES = (2, 1)
-PAPER = [dict(command="run", degree=2, level=0, fast=dict(level=0))]
+PAPER = [dict(command="run", degree=2, level=2, fast=dict(level=1))]
 HERTZ_DEPTH = 0.01  # depths d <= HERTZ_DEPTH R count as the small-depth end in reports
 
 
