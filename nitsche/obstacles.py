@@ -73,8 +73,8 @@ def contact(obstacle, W, field="u", parameters=(), axisymmetric=False):
     """(gap, multiplier) of frictionless contact of the displacement field named `field`
     with the rigid obstacle phi(y, *parameters), for ni.Inequality on boundary facets:
 
-        gap(u, x, ...)       = phi(x + u)
-        multiplier(u, x, n, ...) = n_phi . P(F) n,   n_phi = normal(phi, x + u),
+        gap(u, x, ...)           = phi(x + u, ...)
+        multiplier(u, x, n, ...) = n_phi . P(F) n,   n_phi = normal(phi, x + u, ...),
 
     P = first_piola(W, F), W(F) the energy density, x and n the reference point and
     outward normal.  `parameters`: the names of the problem's run-time parameters that

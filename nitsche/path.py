@@ -64,7 +64,8 @@ def predicted(problem, x, before, lin, eps=1e-3):
     H the Hessian at x before the change (positive definite at a minimum): the first-order
     change of the solution with the active sets of x (points that come into contact are
     left to Newton).  x itself where no parameter changed, where the system cannot be solved
-    (lin: a nitsche.linalg solver) or where the prediction does not lower J_h."""
+    (lin: a nitsche.linalg solver) or where the prediction does not lower J_h (the
+    residual's norm for a problem with residual terms)."""
     after = problem.state()[0]
     if after == before:
         return x
@@ -79,8 +80,10 @@ def predicted(problem, x, before, lin, eps=1e-3):
     except RuntimeError:  # IndefiniteHessian, NotSolved, a singular factor
         problem.set_parameters(**after)
         return x
+    def merit(z):  # J_h, or the residual's norm where J_h has residual terms
+        return problem.energy(z) if problem.symmetric else np.linalg.norm(problem.gradient(z)[problem.free])
     with np.errstate(all="ignore"):
-        return moved if problem.energy(moved) < problem.energy(x) else x
+        return moved if merit(moved) < merit(x) else x
 
 
 def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_step=1 / 64,
