@@ -29,7 +29,7 @@ from .newton import Result, NotConverged, FeasibilityWarning  # noqa: E402
 from .jets import DerivativeError  # noqa: E402
 from .study import nested, prolongate  # noqa: E402
 from .path import path, Path  # noqa: E402
-from . import ops  # noqa: E402
+from . import ops, obstacles  # noqa: E402
 
 
 def minimize(energy, fields, constraints=(), x0=None, **options):
@@ -40,4 +40,4 @@ def minimize(energy, fields, constraints=(), x0=None, **options):
 __all__ = ["Field", "history", "coordinates", "cells", "facets", "interface", "Scaling", "Integral", "Residual",
            "Equality", "Inequality", "Penalty", "Tresca", "Coulomb", "Constraint", "Problem", "Result",
            "NotConverged", "StabilityWarning", "FeasibilityWarning",
-           "DerivativeError", "ops", "minimize", "nested", "prolongate", "path", "Path"]
+           "DerivativeError", "ops", "obstacles", "minimize", "nested", "prolongate", "path", "Path"]

@@ -3,7 +3,9 @@
 A case module (a shipped one, or a file of one's own: `nitsche new NAME` writes a
 commented template) defines
     build(level, degree, p)  -> dict(fields=..., energy=..., constraints=...) for nitsche.Problem,
-                                p a namespace of the parameters; level = uniform refinements
+                                p a namespace of the parameters; level = uniform refinements;
+                                optionally parameters={name: value}: the Problem's run-time
+                                parameters (e.g. a load a path's set_step changes)
 and optionally
     NAME, SUMMARY            the name (default: the file name) and one line about it
                              (default: the docstring's first line)
@@ -188,7 +190,7 @@ class Case:
         self.check_degree(degree)
         spec = self.module.build(level, degree, p)
         problem = Problem(spec["fields"], spec["energy"], spec.get("constraints", ()),
-                          alpha0_limits=alpha0_limits)
+                          alpha0_limits=alpha0_limits, parameters=spec.get("parameters"))
         problem.setup = Setup(self.name, level, degree, p)  # for the case's report hooks
         return problem
 

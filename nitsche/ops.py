@@ -81,6 +81,17 @@ def deformation_gradient(u):
     return jnp.eye(G.shape[0]) + G
 
 
+def axisymmetric_deformation_gradient(u, x):
+    """F of an axisymmetric displacement (u_r, u_z) in (r, z) coordinates (x[0] = r > 0):
+    the 3x3 matrix in the order (r, z, theta),
+
+        F = [[1 + du_r/dr, du_r/dz, 0], [du_z/dr, 1 + du_z/dz, 0], [0, 0, 1 + u_r/r]],
+
+    the last entry the hoop stretch of a ring of radius r."""
+    F = jnp.zeros((3, 3)).at[:2, :2].set(deformation_gradient(u))
+    return F.at[2, 2].set(1 + u.value[0] / x[0])
+
+
 def det(F):
     """det F of a 2x2 or 3x3 matrix (written out: smooth, and cheap to differentiate)."""
     if F.shape == (2, 2):
@@ -88,13 +99,26 @@ def det(F):
     return jnp.dot(F[0], jnp.cross(F[1], F[2]))
 
 
+def det_minus_one(F):
+    """det F - 1 from H = F - I without cancellation: tr H + det H (2x2), tr H +
+    ((tr H)^2 - tr H^2)/2 + det H (3x3); accurate where F is near I (small strains)."""
+    H = F - jnp.eye(F.shape[0])
+    tr = jnp.trace(H)
+    if F.shape == (2, 2):
+        return tr + det(H)
+    return tr + 0.5 * (tr ** 2 - jnp.sum(H * H.T)) + det(H)
+
+
 def neo_hookean(F, mu, lam):
     """The compressible neo-Hookean energy density
-    W(F) = mu/2 (tr(F^T F) - d - 2 ln J) + lam/2 (ln J)^2,  J = det F
-    (NaN for J <= 0: the line search steps back from inverted elements)."""
-    J = det(F)
-    logJ = jnp.log(J)
-    return 0.5 * mu * (jnp.sum(F * F) - F.shape[0] - 2 * logJ) + 0.5 * lam * logJ ** 2
+    W(F) = mu/2 (tr(F^T F) - d - 2 ln J) + lam/2 (ln J)^2,  J = det F,
+    evaluated from H = F - I (tr(F^T F) - d = 2 tr H + H : H, ln J = log1p(det_minus_one(F))),
+    so that small strains keep their relative accuracy (a large body's far field otherwise
+    adds round-off of order 1e-16 mu |body| to J, which stalls Newton's energy line search);
+    NaN or infinite for J <= 0: the line search steps back from inverted elements."""
+    H = F - jnp.eye(F.shape[0])
+    logJ = jnp.log1p(det_minus_one(F))
+    return 0.5 * mu * (2 * jnp.trace(H) + jnp.sum(H * H) - 2 * logJ) + 0.5 * lam * logJ ** 2
 
 
 def first_piola(W, F, *args):

@@ -3,8 +3,10 @@
 At time t the prescribed data are set (the run-time parameter `t` and/or set_step(problem,
 t)), history fields (ni.history) take the previous step's solution, and Newton starts from
 the previous solution with the increment of the prescribed values lifted into the
-interior (Problem.lift: H_ff dx_f = -H_fc dx_fixed).  A step whose Newton run fails is
-halved, down to min_step times its nominal length; after two successes in a row the step
+interior (Problem.lift: H_ff dx_f = -H_fc dx_fixed) and, where run-time parameters
+changed, the first-order change of the solution added (`predicted`, a tangent
+predictor).  A step whose Newton run fails is halved, down to min_step times its
+nominal length; after two successes in a row the step
 doubles again (up to the next listed time).  A step whose Newton run met a non-convex J_h
 (Result.shifts: convexified steps) and failed, for the second time since alpha0 last changed,
 is retried with alpha0 halved on every constraint: the stability limits of alpha0 are those of the reference configuration, and a
@@ -16,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .linalg import make_solver
 from .reactions import reactions
 
 COMPONENTS = ("reaction_x", "reaction_y", "reaction_z")
@@ -52,6 +55,37 @@ def step_reactions(problem, x):
             for name, regions in reactions(problem, x).items() if name not in history}
 
 
+def predicted(problem, x, before, lin, eps=1e-3):
+    """x, the solution at the parameter values `before` ({name: value}), plus the tangent
+    predictor of the change to the present values p:
+
+        H_ff dx_f = -(grad_f J_h(x; before + eps (p - before)) - grad_f J_h(x; before)) / eps,
+
+    H the Hessian at x before the change (positive definite at a minimum): the first-order
+    change of the solution with the active sets of x (points that come into contact are
+    left to Newton).  x itself where no parameter changed, where the system cannot be solved
+    (lin: a nitsche.linalg solver) or where the prediction does not lower J_h (the
+    residual's norm for a problem with residual terms)."""
+    after = problem.state()[0]
+    if after == before:
+        return x
+    try:
+        problem.set_parameters(**before)
+        _, g0, H = problem.newton_system(x)
+        problem.set_parameters(**{k: v + eps * (after[k] - v) for k, v in before.items()})
+        g1 = problem.gradient(x)[problem.free]
+        problem.set_parameters(**after)
+        moved = x.copy()
+        moved[problem.free] += lin.solve(H, -(g1 - g0) / eps, rtol=1e-8)
+    except RuntimeError:  # IndefiniteHessian, NotSolved, a singular factor
+        problem.set_parameters(**after)
+        return x
+    def merit(z):  # J_h, or the residual's norm where J_h has residual terms
+        return problem.energy(z) if problem.symmetric else np.linalg.norm(problem.gradient(z)[problem.free])
+    with np.errstate(all="ignore"):
+        return moved if merit(moved) < merit(x) else x
+
+
 def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_step=1 / 64,
          quiet=False, **newton_options):
     """Solve `problem` at each of the increasing `times` from `start` (x0: the solution at
@@ -70,6 +104,8 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
     if not 0 < min_step <= 1:
         raise ValueError(f"min_step (the smallest step, relative to the listed one) must be in (0, 1], not {min_step!r}")
     history = [f for f in problem.fields if getattr(f, "history_of", None) in problem.by_name]
+    lin = make_solver(newton_options.get("solver", "auto"), problem.free.size, problem.dim,
+                      problem.symmetric)
 
     def set_time(t):
         if parameter in problem.parameters:
@@ -82,7 +118,7 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
     x = problem.initial(x0)
     if x0 is None:
         x[problem.free] = 0.0
-    out, t, previous = Path(), start, start
+    out, t, previous, solved_at = Path(), start, start, problem.state()[0]
     dt, successes, cuts, alpha0_scale, nonconvex = None, 0, 0, 1.0, 0
     for target in times:
         nominal = target - previous
@@ -93,13 +129,14 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
                 problem.set_values(f.name, parts[f.history_of])
             set_time(t + h)
             try:
-                result = problem.minimize(x, lift=True, **newton_options)
+                result = problem.minimize(predicted(problem, x, solved_at, lin), lift=True,
+                                          **newton_options)
                 reason = result.reason
             except ValueError as e:  # e.g. J_h not finite at the start: an inverted element
                 result, reason = None, str(e)
             out.result = result or out.result
             if result is not None and result.converged:
-                t, x = t + h, result.x
+                t, x, solved_at = t + h, result.x, problem.state()[0]
                 out.results.append(result)
                 out.states.append(problem.state())
                 out.steps.append(dict(step=len(out.steps) + 1, time=t, increment=h,

@@ -1,6 +1,7 @@
 """Quantities of a solution declared by the user: any scalar density of the fields' jets
 (and x, n, h), e.g. a stress component, the von Mises stress, a principal stress,
-evaluated at the quadrature points of the cells of the mesh of its first field.
+evaluated at the quadrature points of the cells of the mesh of its first field (or of
+another measure, e.g. a constraint's facets).
 
     quantity(problem, x, lambda u: von_mises(u)) -> q[e, q_point]
 
@@ -14,17 +15,19 @@ from .functional import argument_names, call
 from .measures import cells
 
 
-def quantity(problem, x, density, label="quantity"):
-    """The density's values at the cell quadrature points, shape (cells, points), and
-    the weights W of those points."""
+def quantity(problem, x, density, label="quantity", on=None):
+    """The density's values at the quadrature points of the measure `on` (default: the
+    cells of its first field's mesh; e.g. a constraint's facets, c.on, whose points and
+    weights are those of Problem.constraint_values), shape (elements, points), the
+    weights W of those points and the mesh."""
     names = argument_names(density, label)
     fields = [problem.by_name[k] for k in names if k in problem.by_name]
     if not fields:
         raise ValueError(f"{label} must take a field argument (one of {sorted(problem.by_name)})")
-    term = Term(lambda args: call(density, names, args), names, cells(fields[0]), problem.fields,
-                problem.offsets, label, parameters=problem.parameters)
+    term = Term(lambda args: call(density, names, args), names, on or cells(fields[0]),
+                problem.fields, problem.offsets, label, parameters=problem.parameters)
     (values,) = term.with_pointwise(lambda args: (call(density, names, args),)).run("values", x)
-    return values, term.W[:term.nel], fields[0].mesh
+    return values, term.W[:term.nel], term.measure.mesh
 
 
 def summary(values, W):

@@ -9,7 +9,8 @@ import sys
 from ..case import Case
 
 MODULES = ["dirichlet", "signorini", "obstacle", "elastic_contact", "two_membrane",
-           "membrane_solid", "plate_plate", "plate_unilateral", "friction", "block_friction", "compression", "ironing"]
+           "membrane_solid", "plate_plate", "plate_unilateral", "friction", "block_friction", "compression",
+           "indentation", "ironing"]
 
 
 @functools.lru_cache(maxsize=None)
