@@ -1,0 +1,95 @@
+"""Contact paired in the current configuration (pairing='current'): closest points with
+hysteresis, a path of two deformable bodies (the ironing case on a coarse mesh) that
+compiles once, re-pairs every iterate, balances its forces and converges quadratically, and
+the Jacobian of its residual against finite differences."""
+import numpy as np
+import pytest
+
+import nitsche as ni
+from nitsche import assembly
+from nitsche.cases import get
+from nitsche.sliding import HYSTERESIS, closest_points
+
+
+def test_closest_points_on_a_polyline_and_their_hysteresis():
+    a = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 1.0]])
+    b = np.array([[1.0, 0.0], [2.0, 1.0], [3.0, 1.0]])
+    x = np.array([[0.25, 1.0], [1.5, 0.5 + 1e-3], [5.0, 2.0], [-1.0, -1.0]])
+    s, t = closest_points(x, a, b)
+    assert s.tolist() == [0, 1, 2, 0]
+    assert np.allclose(t, [0.25, 0.5005, 1.0, 0.0])
+    # just past the vertex (1, 0) along segment 0's line: kept on segment 0 within HYSTERESIS
+    y = np.array([[1.0 + 0.5 * HYSTERESIS, -0.1]])
+    assert closest_points(y, a, b)[0].tolist() == [1]
+    assert closest_points(y, a, b, previous=np.array([0]))[0].tolist() == [0]
+    far = np.array([[1.0 + 2 * HYSTERESIS, -0.1]])
+    assert closest_points(far, a, b, previous=np.array([0]))[0].tolist() == [1]
+
+
+@pytest.fixture(scope="module")
+def ironing():
+    case = get("ironing")
+    p = case.parameters({"nx": "24", "nb": "4", "steps_down": "4"})
+    problem = case.problem(0, 1, p)
+    problem.minimize()  # the rest state: compiles every kernel
+    compiled = len(assembly._COMPILED)
+    path = ni.path(problem, **case.module.path(problem, p), quiet=True)
+    return case, p, problem, path, compiled
+
+
+def test_a_two_body_path_compiles_once_and_re_pairs_every_iterate(ironing):
+    case, p, problem, path, compiled = ironing
+    assert path.converged, path.reason
+    assert path.steps[-1]["time"] == pytest.approx(1.0)
+    assert len(assembly._COMPILED) == compiled
+    measure = problem.constraints[0].on
+    assert measure.pairings >= sum(s["iterations"] for s in path.steps)
+    assert path.steps[-1]["contact_measure"] > 0.5  # the block pressed 0.8 into the foundation
+
+
+def test_forces_balance_at_every_step(ironing):
+    """The press's force on the block equals the foundation's support force (both bodies
+    together are in equilibrium), to the Newton tolerance."""
+    case, p, problem, path, _ = ironing
+    for s in path.steps:
+        top, bottom = s["reactions"]["u1"]["top"], s["reactions"]["u2"]["bottom"]
+        scale = max(abs(top["reaction_y"]), 1.0)
+        assert abs(top["reaction_x"] + bottom["reaction_x"]) < 1e-6 * scale
+        assert abs(top["reaction_y"] + bottom["reaction_y"]) < 1e-6 * scale
+    F = case.module.forces(path.steps)
+    assert np.all(np.diff(F[:, 1]) >= 0) and F[-1, 1] > 100  # N: the block pressed in
+
+
+def test_newton_converges_quadratically_once_the_pairing_settles(ironing):
+    case, p, problem, path, _ = ironing
+    r = path.results[-1].residuals
+    tail = [(a, b) for a, b in zip(r, r[1:]) if 1e-12 < a < 1e-3]
+    assert tail and all(b < 100 * a ** 2 + 1e-13 for a, b in tail), r
+
+
+def test_the_contact_jacobian_against_finite_differences(ironing):
+    """At the last step's solution (pairing fixed), the Newton matrix of the sliding Coulomb
+    residual against central differences of the residual, along random directions."""
+    case, p, problem, path, _ = ironing
+    x = path.at(problem, len(path.steps) - 1)
+    problem.update_pairing(x)
+    A = problem.hessian(x)
+    rng = np.random.default_rng(0)
+    free = problem.free
+    for _ in range(3):
+        v = np.zeros(problem.ndofs)
+        v[free] = rng.standard_normal(free.size)
+        v *= 1e-6 / np.abs(v).max()
+        fd = (problem.gradient(x + v) - problem.gradient(x - v)) / 2
+        assert np.linalg.norm((A @ v - fd)[free]) < 1e-5 * np.linalg.norm(fd[free])
+
+
+def test_current_pairing_needs_the_other_body_and_its_surface():
+    case = get("ironing")
+    p = case.parameters({"nx": "8", "nb": "2"})
+    spec = case.module.build(0, 1, p)
+    u1, u2 = spec["fields"][:2]
+    with pytest.raises(ValueError, match="onto="):
+        ni.interface(u1, "arc", other=u2, pairing="current")
+    with pytest.raises(ValueError, match="other="):
+        ni.interface(u1, "arc", pairing="current", onto="top")
