@@ -167,10 +167,14 @@ class Cells(Measure):
         return np.arange(self.mesh.nelements) if self.elements is None else self.elements
 
     def attach(self, field):
-        if field.mesh is self.mesh and self._same_quadrature(field.basis) and \
-                np.array_equal(self.cells, self.cells if field.basis.tind is None else field.basis.tind):
+        if field.mesh is self.mesh and self._same_quadrature(field.basis) and self._same_cells(field.basis):
             self._bases[(id(field.element), False)] = field.basis  # reuse the field's own basis
         return super().attach(field)
+
+    def _same_cells(self, basis):
+        if self.elements is None or basis.tind is None:
+            return self.elements is None and basis.tind is None
+        return np.array_equal(self.elements, basis.tind)
 
     def _same_quadrature(self, basis):
         if self.intorder is None:
