@@ -251,9 +251,10 @@ def execute(case, args, p, out, options):
 def follow(case, args, p, options):
     """A rank other than 0 of a run under mpirun: its part of the solve (rank 0 writes)."""
     from . import commands
-    result = commands.solve(case, args.level, args.degree, p, options, nested=args.nested,
-                            engine=distributed.DistributedProblem.build)[1]
-    return 0 if result.converged else 1
+    _, result, _, failure = commands.solve(case, args.level, args.degree, p, options,
+                                           nested=args.nested,
+                                           engine=distributed.DistributedProblem.build)
+    return 0 if result.converged and failure is None else 1
 
 
 if __name__ == "__main__":
