@@ -94,10 +94,13 @@ def global_names(code):
 
 
 def _pad(a, n):
-    """Pad axis 0 to length n by repeating the last entry (results for the padding are
-    discarded); only the last chunk of a term is padded."""
+    """Pad axis 0 to length n by repeating the last entry, or zeros for a term without
+    elements on this rank (results for the padding are discarded); only the last chunk of a
+    term is padded."""
     if a.shape[0] == n:
         return a
+    if a.shape[0] == 0:
+        return np.zeros((n,) + a.shape[1:])
     return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
 
 
@@ -341,7 +344,7 @@ class Term:
         """Energy, element gradients and element Hessians at x = 0 of a quadratic term,
         computed once; the tabulations are released afterwards (they are not needed again)."""
         if not hasattr(self, "_parts"):
-            self._parts = self.run("full", np.zeros(1 + max(int(d.max()) for d in self.field_dofs)))
+            self._parts = self.run("full", np.zeros(1 + max(int(d.max(initial=0)) for d in self.field_dofs)))
             self.T = self.W = self.x = self.n = self.h = self.alpha0 = None
         return self._parts
 
@@ -373,7 +376,7 @@ class Term:
         us = [x[d] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
         outs = []
-        for s in range(0, nel, self.chunk):
+        for s in range(0, max(nel, 1), self.chunk):  # no elements: one padded chunk, no rows
             sl = slice(s, s + self.chunk) if elements is None else elements[s: s + self.chunk]
             Ts = [T if shared else _pad(T[sl], self.chunk) for T, shared in zip(self.T, self.shared)]
             rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]

@@ -134,6 +134,13 @@ def start_ranks(petsc_options):
         sys.exit(USAGE)
     if comm.rank > 0:
         sys.stdout = sys.stderr = open(os.devnull, "w")
+    report = sys.excepthook
+
+    def abort(*exc):  # an error on one rank ends all (the others would wait in a reduction)
+        report(*exc)
+        sys.__stderr__.flush()
+        comm.Abort(1)
+    sys.excepthook = abort
     return comm
 
 
@@ -215,7 +222,7 @@ def execute(case, args, p, out, options):
     if args.ranks is not None and args.ranks.rank > 0:
         return follow(case, args, p, options)
     folder = OutputFolder(out, overwrite=args.overwrite)
-    engine = distributed.DistributedProblem if args.ranks is not None else None
+    engine = distributed.DistributedProblem.build if args.ranks is not None else None
     try:
         with folder:
             if args.command == "run":
@@ -242,14 +249,12 @@ def execute(case, args, p, out, options):
 
 
 def follow(case, args, p, options):
-    """A rank other than 0 of a run under mpirun: the same computation (its collective
-    steps), its files staged in a temporary folder and dropped."""
-    import tempfile
+    """A rank other than 0 of a run under mpirun: its part of the solve (rank 0 writes)."""
     from . import commands
-    with tempfile.TemporaryDirectory() as tmp, OutputFolder(tmp, overwrite=True) as folder:
-        return commands.run(case, args.level, args.degree, p, folder, options, nested=args.nested,
-                            verbose=args.verbose, global_check=args.global_check,
-                            engine=distributed.DistributedProblem)
+    _, result, _, failure = commands.solve(case, args.level, args.degree, p, options,
+                                           nested=args.nested,
+                                           engine=distributed.DistributedProblem.build)
+    return 0 if result.converged and failure is None else 1
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ nitsche.output.OutputFolder, which the caller commits.
 Return codes: 0 converged; 1 Newton did not converge (the outputs say so: a nested run
 writes its finest converged level, a study the levels it finished).
 """
+import dataclasses
 import os
 import sys
 import time
@@ -16,31 +17,48 @@ from .reactions import reactions
 from .study import StudyFailed, run_study, solve_nested, table
 
 
-def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False,
-        engine=None):
+def solve(case, level, degree, p, options, nested=True, verbose=False, engine=None):
     """Solve `case` at `level` (nested: levels 0..level, each from the previous one; a case
-    with a load path solves its path at `level` only); global_check: also the global alpha0
-    limits and the stability ratio (J_h convex if <= 1); engine: problem -> the problem to
-    minimize (nitsche.distributed.DistributedProblem on MPI ranks)."""
-    t0 = time.perf_counter()
+    with a load path solves its path at `level` only); engine: build -> the problem to
+    minimize, build() making the case's problem (nitsche.distributed.DistributedProblem.build
+    on MPI ranks).  Returns (problem, result, Newton iterations per level, failure)."""
     options = dict(options)
     if verbose:
         options["progress"] = lambda it, res, E: print(f"  Newton {it:3d}  residual {res:.3e}  "
                                                        f"J_h {E:.12g}", file=sys.stderr)
     if nested and not case.has_path:
-        problem, result, its, failure = solve_nested(case, level, degree, p, options,
-                                                     progress=True, engine=engine)
-    else:
-        problem = case.problem(level, degree, p)
-        problem = engine(problem) if engine else problem
-        result = case.solve(problem, None, **options)
-        its, failure = [result.iterations], None
-        if not result.converged:
-            failure = dict(level=level, reason=result.reason)
-        steps = getattr(problem, "path", None)
-        if steps is not None:
-            failure = None if steps.converged else dict(level=level, reason=steps.reason)
-            its = [s["iterations"] for s in steps.steps]
+        return solve_nested(case, level, degree, p, options, progress=True, engine=engine)
+    problem = (engine or (lambda build: build()))(lambda: case.problem(level, degree, p))
+    result = case.solve(problem, None, **options)
+    its, failure = [result.iterations], None
+    if not result.converged:
+        failure = dict(level=level, reason=result.reason)
+    steps = getattr(problem, "path", None)
+    if steps is not None:
+        failure = None if steps.converged else dict(level=level, reason=steps.reason)
+        its = [s["iterations"] for s in steps.steps]
+    return problem, result, its, failure
+
+
+def whole(case, problem, result, degree, p):
+    """The whole problem of a distributed one (rank 0 builds it for the outputs: its set-up
+    and memory are the serial ones) and the result on it."""
+    serial = case.problem(problem.setup.level, degree, p)
+    serial.set_state(problem.state())
+    if hasattr(problem, "path"):
+        serial.path = problem.path
+    return serial, dataclasses.replace(result, problem=serial)
+
+
+def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False,
+        engine=None):
+    """Solve (see solve) and write the outputs; global_check: also the global alpha0
+    limits and the stability ratio (J_h convex if <= 1); with an engine (MPI ranks) the
+    outputs are those of the whole problem, gathered on this rank (0)."""
+    t0 = time.perf_counter()
+    problem, result, its, failure = solve(case, level, degree, p, options, nested, verbose, engine)
+    if engine:
+        problem, result = whole(case, problem, result, degree, p)
     seconds = time.perf_counter() - t0
     reached = problem.setup.level
     if failure and reached < level:

@@ -1,32 +1,32 @@
-"""Newton's method on MPI ranks with PETSc: the serial engine on a partition of the elements.
+"""Newton's method on MPI ranks with PETSc: the serial engine on rank-local problems.
 
-Every rank builds the whole Problem (mesh, terms, alpha0: the set-up is replicated) and
-holds the whole dof vector x; the work of each Newton step is divided:
+Each rank builds its own problem inside nitsche.partition.local (DistributedProblem.build):
+the bases, measures and terms of its own cells only (a METIS partition of each mesh; an
+element belongs to the rank of the cell that owns it), so the set-up and its memory are
+divided among the ranks; the meshes and the dof vectors stay whole on every rank.
 
-- the cells of each mesh are partitioned among the R ranks (METIS on the graph of cells
-  sharing a facet, through pymetis), and each element of a term goes to the rank of the
-  cell that owns it; rank r evaluates its share J_h^r, grad J_h^r and the element
-  Hessians with the same compiled kernels (Term, Assembler on its elements);
+- rank r evaluates its share J_h^r, grad J_h^r and the element Hessians with the same
+  compiled kernels (its problem's Assembler);
 - J_h = sum_r J_h^r and grad J_h = sum_r grad J_h^r are reduced on rank 0 and broadcast,
   so that every rank holds the same bits and takes the same decisions;
 - the Hessian on the free dofs is a PETSc AIJ matrix: its COO pattern (each rank's
-  free-free entries, off-rank ones included) is set once per mesh, its values each step;
-  a free dof is owned by the lowest rank among the elements that hold it;
-- the Newton systems are solved by a PETSc KSP, the step gathered on every rank.
+  free-free entries, those of rows another rank owns included) is set once per mesh, its
+  values each step; a free dof is owned by the lowest rank among the elements that hold it;
+- the Newton systems are solved by a PETSc KSP, the step gathered on every rank;
+- the constraint report is that of the serial engine on the ranks' values gathered.
 
 Newton itself is nitsche.newton.newton, unchanged: the same stopping test, line search and
 result; `ranks` is R.
 """
-import copy
 import os
 
 import numpy as np
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .assembly import Assembler
+from . import partition
 from .linalg import (AMG_THRESHOLD_3D, IndefiniteHessian, NotSolved, lowest_eigenvalue,
                      near_nullspace, positive_diagonal)
+from .problem import report_constraints
 
 SOLVERS = ("auto", "gamg", "direct")
 MPI_ENVIRONMENT = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK")  # Open MPI, MPICH, PMIx
@@ -65,72 +65,39 @@ def _is_number(s):
         return False
 
 
-def element_ranks(terms, free, ranks):
-    """The rank of each element of each term: a k-way METIS partition (pymetis) of the graph
-    whose vertices are the cells of all meshes, two cells joined when elements they own share
-    a free dof (neighbours in a mesh, and across meshes the cells an interface or a membrane
-    couples, which thereby land on one rank)."""
-    offsets, n = {}, 0
-    for t in terms:
-        mesh = t.measure.mesh
-        if id(mesh) not in offsets:
-            offsets[id(mesh)], n = n, n + mesh.t.shape[1]
-    vertices = [offsets[id(t.measure.mesh)] + t.cells for t in terms]
-    if ranks == 1:
-        return [np.zeros(v.size, np.int64) for v in vertices]
-    import pymetis
-    isfree = np.zeros(1 + max(int(t.global_dofs.max()) for t in terms), bool)
-    isfree[free] = True
-    rows = np.concatenate([np.repeat(v, t.global_dofs.shape[1]) for v, t in zip(vertices, terms)])
-    dofs = np.concatenate([t.global_dofs.ravel() for t in terms])
-    keep = isfree[dofs]
-    M = sp.csr_matrix((np.ones(keep.sum()), (rows[keep], dofs[keep])), shape=(n, isfree.size))
-    graph = (M @ M.T).tocsr()
-    graph.setdiag(0)
-    graph.eliminate_zeros()
-    part = np.asarray(pymetis.part_graph(ranks, xadj=graph.indptr, adjncy=graph.indices)[1])
-    return [part[v] for v in vertices]
-
-
-def restrict(term, elements):
-    """The term on some of its elements: the same compiled kernels (same chunk and
-    tabulation shapes); a quadratic term already assembled keeps its element parts."""
-    part = copy.copy(term)
-    part.nel = elements.size
-    part.dofs = [d[elements] for d in term.dofs]
-    part.field_dofs = [d[elements] for d in term.field_dofs]
-    part.global_dofs = term.global_dofs[elements]
-    part.cells = term.cells[elements]
-    if hasattr(term, "_parts"):
-        part._parts = tuple(a[elements] for a in term._parts)
-        return part
-    part.T = [T if shared else T[elements] for T, shared in zip(term.T, term.shared)]
-    part.W, part.x, part.n = term.W[elements], term.x[elements], term.n[elements]
-    part.h, part.alpha0 = term.h[elements], term.alpha0[elements]
-    return part
-
-
 class DistributedProblem:
-    """A Problem whose Newton steps are divided among the ranks of an MPI communicator (see
-    the module docstring); what is not defined here is the serial problem's."""
+    """A problem whose Newton steps are divided among the ranks of an MPI communicator (see
+    the module docstring): `local` is this rank's part, built inside
+    nitsche.partition.local(comm); what is not defined here is the local problem's."""
 
-    def __init__(self, problem, comm=None):
-        self.serial, self.comm = problem, comm or world()
+    def __init__(self, local, comm=None):
+        self.local, self.comm = local, comm or world()
         self.ranks, self.rank = self.comm.size, self.comm.rank
-        terms = problem.assembler.terms
-        self.element_ranks = self.comm.bcast(element_ranks(terms, problem.free, self.ranks)
-                                             if self.rank == 0 else None)
-        self.terms = terms
-        self.local = {id(t): restrict(t, np.flatnonzero(r == self.rank))
-                      for t, r in zip(terms, self.element_ranks) if (r == self.rank).any()}
-        self.local_assembler = Assembler(list(self.local.values()), problem.ndofs) \
-            if self.local else None
+        if getattr(local, "partition", None) != (self.rank, self.ranks):
+            raise ValueError("a DistributedProblem needs this rank's part of the problem: build it "
+                             "inside nitsche.partition.local(comm), e.g. DistributedProblem.build(make)")
+        from mpi4py import MPI
+        self.alpha0_limits = {k: self.comm.allreduce(v, op=MPI.MIN)
+                              for k, v in local.alpha0_limits.items()}
+        self.elements = self.comm.allgather([t.nel for t in local.assembler.terms])  # per rank, per term
         self.assembler = SummedAssembler(self)
         self.layout = Layout(self)
         self.matrix = self.layout.matrix()
+        self.off_rank_entries = self.comm.allreduce(self.layout.off_rank)
+        self.straddling = self.comm.allreduce(sum(
+            int((self.layout.owner[t.global_dofs] != self.rank).any(axis=1).sum())
+            for t in local.constraint_terms))  # constraint elements holding another rank's dofs
+
+    @classmethod
+    def build(cls, make, comm=None):
+        """The problem make() (e.g. lambda: case.problem(level, degree, p)) built on every
+        rank from its own cells, distributed."""
+        comm = comm or world()
+        with partition.local(comm):
+            return cls(make(), comm)
 
     def __getattr__(self, name):
-        return getattr(self.serial, name)
+        return getattr(self.local, name)
 
     def summed(self, a):
         """sum over ranks of a (a number or an array), reduced on rank 0 and broadcast."""
@@ -143,8 +110,7 @@ class DistributedProblem:
 
     def energy(self, x):
         """J_h(x)."""
-        E = self.local_assembler.energy(x) if self.local_assembler is not None else 0.0
-        return float(self.summed(E)[0])
+        return float(self.summed(self.local.assembler.energy(x))[0])
 
     def gradient(self, x):
         """The gradient of J_h at x (all dofs)."""
@@ -155,7 +121,48 @@ class DistributedProblem:
         DistributedMatrix)."""
         E, g, data = self.assembler.evaluate(x)
         self.layout.set_values(data)
-        return E, g[self.serial.free], self.matrix
+        return E, g[self.local.free], self.matrix
+
+    def lift(self, x0, solve):
+        """Problem.lift: H_ff dx_f = -H_fc d with the summed Hessian."""
+        x0 = np.asarray(x0, dtype=float)
+        d, x = self.local.moved(x0), self.local.initial(x0)
+        if d is None:
+            return x
+        _, _, data = self.assembler.evaluate(x0)
+        self.layout.set_values(data)
+        step = np.zeros(self.local.ndofs)
+        step[self.local.fixed] = d
+        rhs = self.summed(self.local.assembler.matrix(data) @ step)[self.local.free]
+        x[self.local.free] += solve(self.matrix, -rhs)
+        return x
+
+    def check_finite(self, x):
+        """Problem.check_finite on every rank's constraint values."""
+        bad = sum(self.comm.allgather(self.local._ingredients(x)[1]), [])
+        if bad:
+            raise ValueError("; ".join(bad) + "; check the gap and multiplier (log, sqrt, "
+                             "division, data) and the initial guess x0")
+
+    def non_finite(self, x):
+        """Problem.non_finite: the reasons of the ranks that have one."""
+        return "; ".join(dict.fromkeys(self.comm.allgather(self.local.non_finite(x))))
+
+    def constraint_values(self, x):
+        """Problem.constraint_values of all ranks' elements (concatenated, rank after rank)."""
+        parts = self.comm.allgather(self.local.constraint_values(x))
+        return {name: {k: None if parts[0][name][k] is None else
+                       np.concatenate([p[name][k] for p in parts]) for k in parts[0][name]}
+                for name in parts[0]}
+
+    def constraint_report(self, x):
+        """Problem.constraint_report on the gathered values (the same on every rank)."""
+        gathered = self.comm.allgather({n: (self.local.alpha0[n], self.local.limits[n])
+                                        for n in self.local.alpha0})
+        alpha0 = {n: np.concatenate([g[n][0] for g in gathered]) for n in gathered[0]}
+        limits = {n: np.concatenate([g[n][1] for g in gathered]) for n in gathered[0]}
+        return report_constraints(self.local.constraints, self.constraint_values(x),
+                                  self.local.split(x), alpha0, limits)
 
     def minimize(self, x0=None, solver="auto", **options):
         """Newton's method (nitsche.newton.newton) with a PETSc solver: 'gamg' (CG + GAMG),
@@ -166,21 +173,16 @@ class DistributedProblem:
 
 
 class SummedAssembler:
-    """The serial Assembler's evaluations (of all terms or of the given serial terms) as sums
-    over the ranks of their local assemblies; the Hessian data stays this rank's (on its
-    local pattern)."""
+    """The Assembler's evaluations (of all terms or of the given ones) as sums over the
+    ranks of their local assemblies; the Hessian data stays this rank's (on its local
+    pattern)."""
 
     def __init__(self, dp):
-        self.dp, self.terms = dp, dp.terms
+        self.dp, self.terms = dp, dp.local.assembler.terms
 
     def evaluate(self, x, terms=None, hessian=True):
-        dp = self.dp
-        mine = None if terms is None else [dp.local[id(t)] for t in terms if id(t) in dp.local]
-        if dp.local_assembler is None or mine == []:
-            E, g, data = 0.0, np.zeros(dp.serial.ndofs), np.zeros(0) if hessian else None
-        else:
-            E, g, data = dp.local_assembler.evaluate(x, mine, hessian)
-        return float(dp.summed(E)[0]), dp.summed(g), data
+        E, g, data = self.dp.local.assembler.evaluate(x, terms, hessian)
+        return float(self.dp.summed(E)[0]), self.dp.summed(g), data
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, summed over the ranks."""
@@ -192,10 +194,13 @@ class Layout:
     PETSc's dof k) and the COO pattern of each rank's free-free Hessian entries."""
 
     def __init__(self, dp):
-        problem = dp.serial
-        owner = np.full(problem.ndofs, dp.ranks - 1)
-        for t, r in zip(dp.terms, dp.element_ranks):
-            np.minimum.at(owner, t.global_dofs.ravel(), np.repeat(r, t.global_dofs.shape[1]))
+        from mpi4py import MPI
+        problem, a = dp.local, dp.local.assembler
+        held = np.zeros(problem.ndofs, bool)
+        for t in a.terms:
+            held[t.global_dofs.ravel()] = True
+        owner = np.where(held, dp.rank, dp.ranks - 1).astype(np.int64)
+        dp.comm.Allreduce(MPI.IN_PLACE, owner, op=MPI.MIN)
         free_owner = owner[problem.free]
         self.order = np.argsort(free_owner, kind="stable")
         self.counts = np.bincount(free_owner, minlength=dp.ranks)
@@ -204,14 +209,13 @@ class Layout:
         self.n, self.comm = problem.free.size, dp.comm
         number = -np.ones(problem.ndofs, np.int64)
         number[problem.free[self.order]] = np.arange(self.n)
-        a = dp.local_assembler
-        if a is None:
-            self.keep, self.rows, self.cols = np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
-            return
         rows = number[np.repeat(np.arange(problem.ndofs), np.diff(a.indptr))]
         cols = number[a.indices]
         self.keep = np.flatnonzero((rows >= 0) & (cols >= 0))
         self.rows, self.cols = rows[self.keep], cols[self.keep]
+        lo, hi = self.start, self.start + self.counts[dp.rank]
+        self.off_rank = int(((self.rows < lo) | (self.rows >= hi)).sum())  # rows of other ranks
+        self.owner = owner
 
     def matrix(self):
         """The PETSc matrix, its pattern set once (values: set_values)."""
@@ -274,7 +278,7 @@ class KrylovSolver:
         if name not in SOLVERS:
             raise ValueError(f"solver must be one of {', '.join(SOLVERS)} on MPI ranks, not {name!r}")
         if name == "auto":
-            name = "gamg" if dp.serial.dim == 3 and dp.serial.free.size > AMG_THRESHOLD_3D else "direct"
+            name = "gamg" if dp.local.dim == 3 and dp.local.free.size > AMG_THRESHOLD_3D else "direct"
         self.name, self.dp, self.rtol = f"petsc-{name}", dp, rtol
         ksp = PETSc.KSP().create(comm=dp.comm)
         ksp.setOperators(dp.layout.A)
@@ -297,7 +301,7 @@ class KrylovSolver:
         if self.kind != "gamg":
             return
         from petsc4py import PETSc
-        B = np.linalg.qr(near_nullspace(self.dp.serial))[0]
+        B = np.linalg.qr(near_nullspace(self.dp.local))[0]
         vectors = [self.dp.layout.vector(b) for b in B.T]
         self.dp.layout.A.setNearNullSpace(PETSc.NullSpace().create(vectors=vectors, comm=self.dp.comm))
 
@@ -344,7 +348,9 @@ class KrylovSolver:
                                                                     dtype=float)) > 0)
 
     def stats(self):
-        return dict(ranks=self.dp.ranks, ksp_iterations=list(self.iterations))
+        return dict(ranks=self.dp.ranks, ksp_iterations=list(self.iterations),
+                    elements=self.dp.elements, off_rank_entries=self.dp.off_rank_entries,
+                    straddling_constraint_elements=self.dp.straddling)
 
 
 def reason_name(reason):

@@ -5,6 +5,7 @@ import numpy as np
 from skfem import Basis, ElementVector
 from skfem.element import ElementH1
 
+from . import partition
 from .elements import with_hessian, provided_orders, own_instance
 from .locate import probes, locate, reference_coordinates
 from .measures import boundary_facets
@@ -16,11 +17,12 @@ _BASES = weakref.WeakValueDictionary()
 
 
 def shared_basis(mesh, element, intorder):
-    """One scikit-fem basis per mesh, element object and quadrature order."""
-    key = (id(mesh), id(element), intorder)
+    """One scikit-fem basis per mesh, element object and quadrature order (on this rank's
+    cells inside nitsche.partition.local)."""
+    key = (id(mesh), id(element), intorder, partition.key())
     basis = _BASES.get(key)
     if basis is None:
-        basis = _BASES[key] = Basis(mesh, element, intorder=intorder)
+        basis = _BASES[key] = Basis(mesh, element, intorder=intorder, elements=partition.cells(mesh))
     return basis
 
 
@@ -162,7 +164,7 @@ class Field:
         out = [0.0, 0.0, 0.0]
         for k in range(b.Nbfun):
             df = elem.gbasis(b.mapping, X, k, tind=cells)[0]
-            c = u[b.element_dofs[k, cells]]
+            c = u[b.dofs.element_dofs[k, cells]]
             out[0] = out[0] + c * np.asarray(df)[..., 0]
             out[1] = out[1] + c * np.asarray(df.grad)[..., 0]
             if df.hess is not None:
@@ -193,7 +195,7 @@ class Field:
                 # a Morley-type normal-derivative basis function has zero tangential
                 # derivative at its own facet midpoint, so its gradient there is the dof normal
                 g = e.gbasis(b.mapping, e.doflocs[k][:, None], k)[0].grad
-                normal[:, b.element_dofs[k]] = np.asarray(g)[:, :, 0]
+                normal[:, b.dofs.element_dofs[k]] = np.asarray(g)[:, :, 0]
         return kind, normal
 
     def _prolongate_by_dofs(self, coarse, u):

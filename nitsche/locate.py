@@ -88,5 +88,5 @@ def probes(basis, x, outside="raise"):
                      for k in range(basis.Nbfun)])  # (Nbfun, *components, n, 1)
     comp = int(np.prod(phis.shape[1:-2], dtype=int))
     rows = np.tile(np.arange(comp * x.shape[1]), basis.Nbfun)
-    cols = basis.element_dofs[:, np.tile(cells, comp)].ravel()
+    cols = basis.dofs.element_dofs[:, np.tile(cells, comp)].ravel()  # cells of the whole mesh
     return coo_matrix((phis.ravel(), (rows, cols)), shape=(comp * x.shape[1], basis.N)).tocsr()

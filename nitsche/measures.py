@@ -20,6 +20,7 @@ import numpy as np
 from skfem import CellBasis, FacetBasis
 from skfem.quadrature import get_quadrature
 
+from . import partition
 from .elements import has_zero_hessian
 from .jets import ORDERS
 from .locate import reference_coordinates
@@ -128,7 +129,7 @@ class Measure:
         parts = [[None if o == 2 and zero_hessian  # degree one: exact zeros, no Hessian basis
                   else _part(b.basis[k][0], o).reshape(c - a, -1, nq)  # (components, e, q)
                   for o, a, c in zip(orders, starts[:-1], starts[1:])] for k in range(b.Nbfun)]
-        shared = all(p is None or (p == p[:, :1]).all() for row in parts for p in row)
+        shared = b.nelems > 0 and all(p is None or (p == p[:, :1]).all() for row in parts for p in row)
         T = np.zeros((1 if shared else b.nelems, nq, starts[-1], b.Nbfun))
         for k, row in enumerate(parts):
             for p, a, c in zip(row, starts[:-1], starts[1:]):
@@ -146,26 +147,34 @@ class Measure:
 
 
 class Cells(Measure):
+    """The cells of a mesh (this rank's inside nitsche.partition.local)."""
     kind = "cells"
 
     def __init__(self, mesh, intorder=None, quadrature=None, weight=None):
-        super().__init__(mesh, lambda e: CellBasis(mesh, e, intorder=intorder,
-                                                    quadrature=quadrature), weight)
+        self.elements = partition.cells(mesh)  # None: all
+        super().__init__(mesh, lambda e: CellBasis(mesh, e, intorder=intorder, quadrature=quadrature,
+                                                    elements=self.elements), weight)
         self.intorder = intorder
 
     @property
     def h(self):
-        return cell_diameters(self.mesh)
+        d = cell_diameters(self.mesh)
+        return d if self.elements is None else d[self.elements]
 
     @property
     def cells(self):
         """The cell owning each element: itself."""
-        return np.arange(self.mesh.nelements)
+        return np.arange(self.mesh.nelements) if self.elements is None else self.elements
 
     def attach(self, field):
-        if field.mesh is self.mesh and self._same_quadrature(field.basis):
+        if field.mesh is self.mesh and self._same_quadrature(field.basis) and self._same_cells(field.basis):
             self._bases[(id(field.element), False)] = field.basis  # reuse the field's own basis
         return super().attach(field)
+
+    def _same_cells(self, basis):
+        if self.elements is None or basis.tind is None:
+            return self.elements is None and basis.tind is None
+        return np.array_equal(self.elements, basis.tind)
 
     def _same_quadrature(self, basis):
         if self.intorder is None:
@@ -175,12 +184,14 @@ class Cells(Measure):
 
 
 class Facets(Measure):
+    """Boundary facets of a mesh (those of this rank's cells inside nitsche.partition.local)."""
     kind = "facets"
 
     def __init__(self, mesh, facets, intorder=None, weight=None):
-        self.facets = np.asarray(facets, dtype=np.int64)
-        if self.facets.size == 0:
+        facets = np.asarray(facets, dtype=np.int64)
+        if facets.size == 0:
             raise ValueError("the facet selection is empty: check the boundary predicate or name")
+        self.facets = facets[partition.owned(mesh, mesh.f2t[0, facets])]
         super().__init__(mesh, lambda e: FacetBasis(mesh, e, facets=self.facets,
                                                      intorder=intorder), weight)
 
@@ -245,7 +256,8 @@ def tabulate_at(field, orders, cells, x):
     parts = []
     for k in range(basis.Nbfun):
         df = elem.gbasis(basis.mapping, ref, k, tind=cells.ravel())[0]
-        parts.append(np.concatenate([_part(df, o).reshape(-1, E, Q) for o in orders], axis=0))
+        values = [_part(df, o) for o in orders]  # (components..., E Q, 1)
+        parts.append(np.concatenate([v.reshape(int(np.prod(v.shape[:-2])), E, Q) for v in values]))
     return np.ascontiguousarray(np.stack(parts, axis=-1).transpose(1, 2, 0, 3))
 
 
@@ -322,7 +334,7 @@ class Interface:
                 new = ~found
                 owners[rows[new], count[new]] = c[new]
                 count[new] += 1
-            S = int(count.max())
+            S = int(count.max(initial=1))  # (1: a rank without elements here)
             owners = owners[:, :S]
             owners = np.where(owners < 0, owners[:, :1], owners)  # padding: a repeated cell
             self._other[id(field)] = (X, cells, slots, owners)
@@ -339,8 +351,8 @@ class Interface:
         T = np.zeros((E, Q, phi.shape[2], S, nloc))
         e, q = np.meshgrid(np.arange(E), np.arange(Q), indexing="ij")
         T[e, q, :, slots, :] = phi
-        dofs = field.basis.element_dofs[:, owners]  # (nloc, E, S)
-        return (np.ascontiguousarray(T.reshape(E, Q, -1, S * nloc)),
+        dofs = field.basis.dofs.element_dofs[:, owners]  # (nloc, E, S)
+        return (np.ascontiguousarray(T.reshape(E, Q, phi.shape[2], S * nloc)),
                 np.ascontiguousarray(dofs.transpose(1, 2, 0).reshape(E, S * nloc)))
 
     def shapes(self, field, orders):
@@ -377,17 +389,20 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     on_cells = isinstance(where, str) and where == "cells"
     if other is not None and pairing != "points":
         from . import supermesh as sm
-        mine = None if on_cells else select_facets(field.mesh, where)
+        mine = None if on_cells else np.asarray(select_facets(field.mesh, where), dtype=np.int64)
+        if mine is not None and np.size(mine) == 0:
+            raise ValueError("the facet selection is empty: check the boundary predicate or name")
         theirs = boundary_facets(other.mesh)
         cell_diameters(field.mesh)  # the mesh's, shared with every measure on it
         start = time.perf_counter()  # the supermesh's own cost, from the facet selections
         points = None if to_other is None else np.asarray(to_other(field.mesh.p), dtype=float)
-        s1 = sm.cell_surface(field.mesh, points) if on_cells else \
-            sm.facet_surface(field.mesh, mine, points)
+        s1 = sm.cell_surface(field.mesh, points, partition.cells(field.mesh)) if on_cells else \
+            sm.facet_surface(field.mesh, mine[partition.owned(field.mesh, field.mesh.f2t[0, mine])],
+                             points)  # this rank's own facets against the other's whole boundary
         m = sm.Supermesh(s1, sm.facet_surface(other.mesh, theirs),
                          2 * field.element.maxdeg if intorder is None else intorder, reach)
         m.stats["seconds"] = time.perf_counter() - start
-        if pairing == "supermesh" or not m.conforming:
+        if pairing == "supermesh" or not partition.everywhere(m.conforming):
             if weight is not None:
                 m.W = weighted(m.W, weight, m.points, "interface")
             return m

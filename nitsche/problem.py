@@ -4,6 +4,7 @@ import warnings
 import numpy as np
 import scipy.sparse as sp
 
+from . import partition
 from .assembly import Assembler, ConstantDensity, Parameters, Term, check_arguments
 from .functional import Integral
 from .measures import cells
@@ -44,6 +45,7 @@ class Problem:
         sizes = [f.ndofs for f in self.fields]
         self.offsets = dict(zip(names, np.cumsum([0] + sizes[:-1]).tolist()))
         self.ndofs = int(sum(sizes))
+        self.partition = partition.key()  # (rank, ranks): built on this rank's cells only
         self.dim = self.fields[0].mesh.dim()
         fixed = np.concatenate([f.fixed_dofs + self.offsets[f.name] for f in self.fields])
         self.fixed_values = np.concatenate([f.fixed_values for f in self.fields])
@@ -118,7 +120,7 @@ class Problem:
                               f"stability limit {limit[over].min():.4g} on {over.sum()} of {t.nel} "
                               f"elements (J_h may not be convex; Newton may fail); use a smaller "
                               f"alpha0 or alpha0='auto'", StabilityWarning)
-        self.alpha0_limits = {c.name: float(self.limits[c.name].min()) for c in self.constraints
+        self.alpha0_limits = {c.name: float(self.limits[c.name].min(initial=np.inf)) for c in self.constraints
                               if c.multiplier is not None}
 
     def local_limits(self, constraints=None, x=None):
@@ -452,57 +454,9 @@ class Problem:
             else "the terms of J_h are finite but their sum overflows: check the magnitudes of the loads/parameters"
 
     def constraint_report(self, x):
-        """Per constraint: kind, alpha0, active points and contact measure, the largest
-        violation v (of g >= 0, or |g| for g = 0) and the multiplier lambda_N; and whether
-        the constraint looks infeasible.  At an active point the Nitsche violation is
-        -g = alpha (lambda_N - lambda): a feasible problem's lambda_N is a multiplier a
-        discrete field of size U (max |u| over the fields of g) can exert, at most
-        ~ stiffness U / h^k, so v <~ alpha0 U, and v -> 0 with h (on coarse meshes under
-        large loads v reached 8 alpha0 U: hence the factor 50); an infeasible one (an
-        obstacle above the boundary values, a gap that cannot be met) keeps v ~ U and
-        lambda_N ~ v / alpha -> oo.  Flagged: at the most violated point
-            v > violation_limit = min(1/2, 50 alpha0_T) U   and   v > 2 alpha |lambda(u_h)|
-        (the second: the violation is not the consistency term alpha (lambda - lambda_N)
-        with lambda_N ~ lambda; it also keeps round-off of a zero solution unflagged)."""
-        rep, values, parts = {}, self.constraint_values(x), self.split(x)
-        for c in self.constraints:
-            v = values[c.name]
-            vector = np.ndim(v["g"]) == 3
-            g, lam, lam_n = (v[k][..., 0] if vector else v[k] for k in ("g", "lam", "multiplier"))
-            if c.inequality:
-                active = lam_n > 0
-                violation = np.maximum(-g, 0.0)
-            else:
-                active = np.zeros_like(g, bool)
-                violation = np.abs(g)
-            worst = np.unravel_index(np.argmax(violation), violation.shape)
-            viol = float(violation[worst])
-            size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
-                       default=0.0)
-            a, limits = self.alpha0[c.name], self.limits[c.name]
-            limit = min(0.5, 50 * float(np.broadcast_to(a, violation.shape[:1])[worst[0]])) * size
-            consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * lam, violation.shape)[worst]))
-            rep[c.name] = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
-                               alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
-                               alpha0_limit_min=float(limits.min()),
-                               alpha0_limit_median=float(np.median(limits)),
-                               alpha0_limit_max=float(limits.max()),
-                               active_count=int(active.sum()),
-                               contact_measure=float((v["W"] * active).sum()),
-                               max_violation=viol,
-                               peak_multiplier=float(np.max(lam_n)),
-                               total_multiplier=float((v["W"] * lam_n).sum()),
-                               violation_limit=limit,
-                               infeasible=bool(viol > limit and viol > consistency))
-            if c.projection.frictional:
-                traction = v["multiplier"][..., 1:]
-                rep[c.name].update(
-                    theta=c.theta, stick_measure=float((v["W"] * (v["state"] == 1)).sum()),
-                    slip_measure=float((v["W"] * (v["state"] == 2)).sum()),
-                    separation_measure=float((v["W"] * (v["state"] == 0)).sum()),
-                    peak_tangential_traction=float(np.linalg.norm(traction, axis=-1).max()),
-                    total_tangential_traction=(v["W"][..., None] * traction).sum((0, 1)).tolist())
-        return rep
+        """report_constraints at x (see there)."""
+        return report_constraints(self.constraints, self.constraint_values(x), self.split(x),
+                                  self.alpha0, self.limits)
 
 
 INGREDIENTS = ("gap g", "multiplier lambda", "scaling alpha")
@@ -515,11 +469,68 @@ SINGULAR = ("the energy Hessian at the initial guess is singular or indefinite w
 FIX = "the supports (Dirichlet conditions) or the initial guess"
 
 
+def report_constraints(constraints, values, parts, alpha0, limits):
+    """Per constraint (values: Problem.constraint_values, parts: the fields' dofs, alpha0 and
+    limits per element): kind, alpha0, active points and contact measure, the largest
+    violation v (of g >= 0, or |g| for g = 0) and the multiplier lambda_N; and whether
+    the constraint looks infeasible.  At an active point the Nitsche violation is
+    -g = alpha (lambda_N - lambda): a feasible problem's lambda_N is a multiplier a
+    discrete field of size U (max |u| over the fields of g) can exert, at most
+    ~ stiffness U / h^k, so v <~ alpha0 U, and v -> 0 with h (on coarse meshes under
+    large loads v reached 8 alpha0 U: hence the factor 50); an infeasible one (an
+    obstacle above the boundary values, a gap that cannot be met) keeps v ~ U and
+    lambda_N ~ v / alpha -> oo.  Flagged: at the most violated point
+        v > violation_limit = min(1/2, 50 alpha0_T) U   and   v > 2 alpha |lambda(u_h)|
+    (the second: the violation is not the consistency term alpha (lambda - lambda_N)
+    with lambda_N ~ lambda; it also keeps round-off of a zero solution unflagged)."""
+    rep = {}
+    for c in constraints:
+        v = values[c.name]
+        vector = np.ndim(v["g"]) == 3
+        g, lam, lam_n = (v[k][..., 0] if vector else v[k] for k in ("g", "lam", "multiplier"))
+        if c.inequality:
+            active = lam_n > 0
+            violation = np.maximum(-g, 0.0)
+        else:
+            active = np.zeros_like(g, bool)
+            violation = np.abs(g)
+        worst = np.unravel_index(np.argmax(violation), violation.shape)
+        viol = float(violation[worst])
+        size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
+                   default=0.0)
+        a, limit_c = alpha0[c.name], limits[c.name]
+        limit = min(0.5, 50 * float(np.broadcast_to(a, violation.shape[:1])[worst[0]])) * size
+        consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * lam, violation.shape)[worst]))
+        rep[c.name] = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
+                           alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
+                           alpha0_limit_min=float(limit_c.min()),
+                           alpha0_limit_median=float(np.median(limit_c)),
+                           alpha0_limit_max=float(limit_c.max()),
+                           active_count=int(active.sum()),
+                           contact_measure=float((v["W"] * active).sum()),
+                           max_violation=viol,
+                           peak_multiplier=float(np.max(lam_n)),
+                           total_multiplier=float((v["W"] * lam_n).sum()),
+                           violation_limit=limit,
+                           infeasible=bool(viol > limit and viol > consistency))
+        if c.projection.frictional:
+            traction = v["multiplier"][..., 1:]
+            rep[c.name].update(
+                theta=c.theta, stick_measure=float((v["W"] * (v["state"] == 1)).sum()),
+                slip_measure=float((v["W"] * (v["state"] == 2)).sum()),
+                separation_measure=float((v["W"] * (v["state"] == 0)).sum()),
+                peak_tangential_traction=float(np.linalg.norm(traction, axis=-1).max()),
+                total_tangential_traction=(v["W"][..., None] * traction).sum((0, 1)).tolist())
+    return rep
+
+
 def cell_hessians(term, x, cells):
-    """The element Hessians of an energy term at x on the given cells, and their dofs (of a
-    quadratic term: from all of its element Hessians, stored for the Newton assembly)."""
-    H = term.quadratic_parts()[2][cells] if term.is_quadratic else term.run("full", x, cells)[2]
-    return H, term.global_dofs[cells]
+    """The element Hessians of a cell term of the energy at x on the given cells of its mesh,
+    and their dofs (of a quadratic term: from all of its element Hessians, stored for the
+    Newton assembly); the term's cells (all, or a rank's) are sorted."""
+    e = np.searchsorted(term.cells, cells)
+    H = term.quadratic_parts()[2][e] if term.is_quadratic else term.run("full", x, e)[2]
+    return H, term.global_dofs[e]
 
 
 def multiplier_jacobian(term, c, x):

@@ -60,8 +60,9 @@ def nested(make_problem, levels, solve=None, **newton_options):
 
 def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=False,
                  engine=None):
-    """Solve the case's levels first .. level by nested iteration (engine: problem -> the
-    problem to minimize, e.g. nitsche.distributed.DistributedProblem; the case's by default).
+    """Solve the case's levels first .. level by nested iteration (engine: build -> the
+    problem to minimize, build() making the case's problem, e.g.
+    nitsche.distributed.DistributedProblem.build; the case's problem by default).
 
     Returns (problem, result, iterations per level, failure): the finest level's problem
     and result, or, when a level fails (Newton, or an error such as MemoryError on a finer
@@ -69,8 +70,8 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     failure on the first level returns its unconverged result (an error there is raised)."""
     prev, its = None, []
     try:
-        engine = engine or (lambda problem: problem)
-        for k, problem, result in nested(lambda k: engine(case.problem(k, degree, p)),
+        engine = engine or (lambda build: build())
+        for k, problem, result in nested(lambda k: engine(lambda: case.problem(k, degree, p)),
                                          range(first, level + 1), case.solve,
                                          **(newton_options or {})):
             its.append(result.iterations)

@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from skfem.quadrature import get_quadrature
 from skfem.refdom import RefLine, RefTri
 
+from . import partition
 from .measures import cell_diameters, tabulate_at, value_shapes
 
 TOL = 1e-10  # pieces smaller than TOL times their surface element are dropped
@@ -77,18 +78,18 @@ def facet_surface(mesh, facets, points=None):
     """The boundary facets `facets` of a mesh, outward normals; points: the vertex
     coordinates in the common space (default mesh.p)."""
     facets = np.asarray(facets, dtype=np.int64)
-    if facets.size == 0:
-        raise ValueError("the facet selection is empty: check the boundary predicate or name")
     return Surface(mesh, mesh.facets[:, facets], mesh.f2t[0, facets],
                    mesh.p if points is None else points)
 
 
-def cell_surface(mesh, points):
-    """The cells of a mesh of dimension D - 1 (a membrane) with vertices at `points` (D, n)."""
+def cell_surface(mesh, points, cells=None):
+    """The cells (default all) of a mesh of dimension D - 1 (a membrane) with vertices at
+    `points` (D, n)."""
     if points is None or points.shape[0] != mesh.dim() + 1:
         raise ValueError("an interface on cells paired with another body needs to_other, the "
                          "map of the cells into the other body's space (one dimension up)")
-    return Surface(mesh, mesh.t, np.arange(mesh.t.shape[1]), points, outward=False)
+    cells = np.arange(mesh.t.shape[1]) if cells is None else cells
+    return Surface(mesh, mesh.t[:, cells], cells, points, outward=False)
 
 
 def plane_normals(corners):
@@ -222,7 +223,7 @@ class Supermesh:
         d = np.sum((s2.origin[j, None] - x) * n2, axis=2) / np.sum(n1 * n2, axis=2)
         near = np.all(np.abs(d) <= reach[i, None], axis=1)
         i, j, local, W, x, d, n1 = i[near], j[near], local[near], W[near], x[near], d[near], n1[near]
-        if i.size == 0:
+        if partition.everywhere(i.size == 0):
             raise ValueError("the supermesh is empty: no facet of the other body faces this "
                              "surface within reach")
         y = x + d[..., None] * n1
@@ -238,7 +239,7 @@ class Supermesh:
         """Every S_i is covered by one T_j exactly, in contact (matching meshes): then the
         other body's trace is polynomial on S_i at the same physical points."""
         i, j = self.owner
-        if np.abs(self.distance).max() > TOL * self.h.min():
+        if np.abs(self.distance).max(initial=0.0) > TOL * self.h.min(initial=np.inf):
             return False
         pairs = np.unique(np.stack([i, j]), axis=1)
         own = np.bincount(i, weights=self.W.sum(axis=1), minlength=len(self.s1.cells))
@@ -271,7 +272,7 @@ class Supermesh:
         cells, x = self._body(field)
         Q = x.shape[2]
         T = tabulate_at(field, orders, np.repeat(cells[:, None], Q, axis=1), x)
-        return T, np.ascontiguousarray(field.basis.element_dofs[:, cells].T)
+        return T, np.ascontiguousarray(field.basis.dofs.element_dofs[:, cells].T)
 
     def shapes(self, field, orders):
         return value_shapes(field, orders)

@@ -12,12 +12,14 @@ def main(solver, specs):
     for spec in specs:
         name, level = spec.split(":")
         case = cases.get(name)
-        problem = DistributedProblem(case.problem(int(level), case.degrees[0], case.parameters({})))
+        problem = DistributedProblem.build(
+            lambda: case.problem(int(level), case.degrees[0], case.parameters({})))
         r = problem.minimize(solver=solver)
         if problem.rank == 0:
             print(json.dumps(dict(case=name, energy=r.energy, iterations=r.iterations,
                                   converged=r.converged, ranks=r.ranks, solver=r.solver,
-                                  stats=r.solver_stats)), flush=True)
+                                  stats=r.solver_stats, active_count=r.active_count,
+                                  max_violation=r.max_violation)), flush=True)
 
 
 if __name__ == "__main__":

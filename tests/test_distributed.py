@@ -1,7 +1,8 @@
 """nitsche.distributed under mpirun: 1, 2 and 3 ranks give the serial energy and Newton
 iterations (obstacle; two-membrane: two fields; elastic-contact: an interface across rank
-boundaries, two meshes; membrane-solid: 3D, CG + GAMG); `mpirun nitsche run` writes one
-result.json and one VTU.  Skipped without petsc4py / mpirun (installed by `make petsc`)."""
+boundaries, two meshes; membrane-solid: 3D, CG + GAMG), each rank building the elements of
+its own cells only; `mpirun nitsche run` writes one result.json and one VTU.  Skipped
+without petsc4py / mpirun (installed by `make petsc`)."""
 import json
 import os
 import shutil
@@ -46,8 +47,10 @@ def serial(levels, solver):
     out = {}
     for name, level in levels.items():
         case = cases.get(name)
-        r = case.problem(level, case.degrees[0], case.parameters({})).minimize(solver=solver)
-        out[name] = dict(energy=r.energy, iterations=r.iterations)
+        problem = case.problem(level, case.degrees[0], case.parameters({}))
+        r = problem.minimize(solver=solver)
+        out[name] = dict(energy=r.energy, iterations=r.iterations, active_count=r.active_count,
+                         elements=[t.nel for t in problem.assembler.terms])
     return out
 
 
@@ -60,16 +63,26 @@ def reference():
 
 
 def agree(runs, reference, ranks):
+    """The serial energy, iterations and active points; every element built by one rank
+    (the ranks' counts sum to the serial ones), each rank holding a part only."""
     for name, r in runs.items():
+        serial = reference[name]
         assert r["converged"] and r["ranks"] == ranks, r
-        assert abs(r["energy"] - reference[name]["energy"]) <= 1e-10 * abs(reference[name]["energy"]), \
-            (name, ranks, r["energy"], reference[name]["energy"])
-        assert r["iterations"] == reference[name]["iterations"], (name, ranks, r, reference[name])
+        assert abs(r["energy"] - serial["energy"]) <= 1e-10 * abs(serial["energy"]), \
+            (name, ranks, r["energy"], serial["energy"])
+        assert r["iterations"] == serial["iterations"], (name, ranks, r, serial)
+        assert r["active_count"] == serial["active_count"], (name, ranks, r, serial)
+        per_rank = r["stats"]["elements"]
+        assert [sum(c) for c in zip(*per_rank)] == serial["elements"], (name, per_rank, serial)
+        assert all(sum(c) < sum(serial["elements"]) for c in per_rank) or ranks == 1, per_rank
 
 
 @pytest.mark.parametrize("ranks", [1, 2, 3])
 def test_ranks_give_the_serial_energy_and_iterations(ranks, reference):
-    agree(distributed(ranks, "direct", CASES), reference, ranks)
+    runs = distributed(ranks, "direct", CASES)
+    agree(runs, reference, ranks)
+    # the contact facets of body 1 pair with cells of body 2 on another rank
+    assert (runs["elastic-contact"]["stats"]["straddling_constraint_elements"] > 0) == (ranks > 1)
 
 
 @pytest.mark.parametrize("ranks", [1, 2, 3])

@@ -1,0 +1,90 @@
+"""The cells of each mesh that this MPI rank builds: rank-local set-up.
+
+Inside `with partition.local(comm):` the bases of fields and measures are built on this
+rank's cells only: a k-way METIS partition (pymetis) of each mesh's dual graph (cells
+joined by a facet), computed on rank 0 and broadcast.  An element of a measure (a cell, a
+boundary facet, an interface facet or supermesh piece, a membrane cell) belongs to the
+rank of the cell that owns it, so every element is tabulated and assembled by exactly one
+rank and no ghost cells are needed: a dof that elements of several ranks share is summed
+by the reductions and by PETSc's COO assembly (nitsche.distributed).
+
+What stays whole on every rank: the meshes (points, cells, facets, the dof numbering) and
+the dof vectors.  The other body's boundary is thereby the all-gathered contact surface
+against which each rank pairs its own interface facets.
+"""
+import contextlib
+import weakref
+
+import numpy as np
+
+_ACTIVE = []  # the communicator of the partition being built in, innermost last
+_CELLS = {}  # (id(mesh), ranks) -> this rank's cells, dropped with the mesh
+
+
+@contextlib.contextmanager
+def local(comm):
+    """Build fields, measures and problems on this rank's cells of every mesh."""
+    _ACTIVE.append(comm)
+    try:
+        yield comm
+    finally:
+        _ACTIVE.pop()
+
+
+def active():
+    """The communicator of the partition being built in, or None (serial set-up)."""
+    return _ACTIVE[-1] if _ACTIVE else None
+
+
+def key():
+    """(rank, ranks) of the partition being built in, None outside: a cache key."""
+    comm = active()
+    return None if comm is None else (comm.rank, comm.size)
+
+
+def dual_graph(mesh):
+    """The cells' adjacency (CSR: xadj, adjncy): cells sharing a facet."""
+    f2t = mesh.f2t[:, mesh.f2t[1] >= 0]
+    n = mesh.t.shape[1]
+    rows, cols = np.concatenate([f2t[0], f2t[1]]), np.concatenate([f2t[1], f2t[0]])
+    order = np.lexsort((cols, rows))
+    return np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))]), cols[order]
+
+
+def cells(mesh):
+    """This rank's cells of the mesh (sorted), or None outside a partition (all cells)."""
+    comm = active()
+    if comm is None:
+        return None
+    k = (id(mesh), comm.size)
+    if k not in _CELLS:
+        part = None
+        if comm.rank == 0:
+            import pymetis
+            xadj, adjncy = dual_graph(mesh)
+            part = np.zeros(mesh.t.shape[1], np.int64) if comm.size == 1 else \
+                np.asarray(pymetis.part_graph(comm.size, xadj=xadj, adjncy=adjncy)[1], np.int64)
+        part = comm.bcast(part, root=0)
+        _CELLS[k] = np.flatnonzero(part == comm.rank)
+        weakref.finalize(mesh, _CELLS.pop, k, None)
+    return _CELLS[k]
+
+
+def owned(mesh, owners):
+    """Which elements, given the cells that own them, are this rank's (all outside a
+    partition)."""
+    mine = cells(mesh)
+    if mine is None:
+        return np.ones(len(owners), bool)
+    return np.isin(owners, mine)
+
+
+def everywhere(flag):
+    """flag on every rank (logical and over the partition's ranks; flag outside)."""
+    comm = active()
+    return bool(flag) if comm is None else bool(comm.allreduce(bool(flag), op=_and()))
+
+
+def _and():
+    from mpi4py import MPI
+    return MPI.LAND
