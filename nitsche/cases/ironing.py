@@ -11,7 +11,7 @@ foundation at the start).  Both compressible neo-Hookean,
 
 nu = 0.32, foundation E = 68.96e7 Pa = 689.6 N/mm^2, block 10 times stiffer.
 The block's top is moved down by 1 over the normalized time 0-1, then by 10 sideways
-over 1-2.  Contact on the block's arc (the slave) against the foundation's current top
+over 1-2.  Contact on the block's arc and leading side (the slave) against the foundation's current top
 (pairing='current': closest points, updated at every Newton iterate), Coulomb friction
 F = 0.3, in the current configuration:
 
@@ -73,7 +73,8 @@ def foundation(nx, level):
 
 def block(nb, level):
     """The block: its arc (angles from -143.13 to -36.87 degrees about (0.8, 4.95)) blended
-    linearly into its top y = 5.4, nb x nb/2 quadrilaterals; boundaries 'arc', 'top'."""
+    linearly into its top y = 5.4, nb x nb/2 quadrilaterals; boundaries 'arc', 'top' and
+    'contact' (the arc and the leading side x = 1.4, as in the solids4foam tutorial)."""
     m = MeshQuad.init_tensor(np.linspace(0, 1, nb + 1), np.linspace(0, 1, nb // 2 + 1)).refined(level)
     s, r = m.p
     start, end = np.arctan2(-0.45, -0.6), np.arctan2(-0.45, 0.6)
@@ -81,7 +82,8 @@ def block(nb, level):
     bottom = CENTER[:, None] + RADIUS * np.array([np.cos(angle), np.sin(angle)])
     top = np.array([0.2 + 1.2 * s, np.full_like(s, 5.4)])
     m = MeshQuad(bottom + r * (top - bottom), m.t)
-    return m.with_boundaries({"arc": lambda x: x[1] < 4.5, "top": lambda x: x[1] > 5.4 - 1e-9})
+    return m.with_boundaries({"arc": lambda x: x[1] < 4.5, "top": lambda x: x[1] > 5.4 - 1e-9,
+                              "contact": lambda x: (x[1] < 4.5) | (x[0] > 1.4 - 1e-9)})
 
 
 def lame(E, nu):
@@ -122,7 +124,7 @@ def build(level, degree, p):
         n_s = current_normal(u1, n)
         return -jnp.stack([dot(n_s, traction), dot(tangent(n_s), traction)])
 
-    arc = ni.interface(u1, "arc", other=u2, pairing="current", onto="top", intorder=2 * degree + 2)
+    arc = ni.interface(u1, "contact", other=u2, pairing="current", onto="top", intorder=2 * degree + 2)
     contact = ni.Coulomb(gap, multiplier, ni.Scaling(p.alpha0, h_power=1, stiffness=E1), arc,
                          friction=p.F, theta=p.theta)
     return dict(fields=[u1, u2, u1_old, u2_old, X2], energy=energy, constraints=[contact])
