@@ -104,7 +104,8 @@ def restrict(term, elements):
     if hasattr(term, "_parts"):
         part._parts = tuple(a[elements] for a in term._parts)
         return part
-    part.T = [T if shared else T[elements] for T, shared in zip(term.T, term.shared)]
+    part.T = [T if T.shape[0] == 1 else T[elements] for T in term.T]
+    part.J = [J if J is None or J.shape[0] == 1 else J[elements] for J in term.J]
     part.W, part.x, part.n = term.W[elements], term.x[elements], term.n[elements]
     part.h, part.alpha0 = term.h[elements], term.alpha0[elements]
     return part

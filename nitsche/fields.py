@@ -7,7 +7,7 @@ from skfem.element import ElementH1
 
 from .elements import with_hessian, provided_orders, own_instance
 from .locate import probes, locate, reference_coordinates
-from .measures import boundary_facets
+from .measures import boundary_facets, build_facets
 
 
 # (id(mesh), id(element), intorder) -> basis, while a field holds it (the basis keeps its
@@ -20,6 +20,8 @@ def shared_basis(mesh, element, intorder):
     key = (id(mesh), id(element), intorder)
     basis = _BASES.get(key)
     if basis is None:
+        if getattr(element, "facet_dofs", 0):  # the dofs on facets number them
+            build_facets(mesh)
         basis = _BASES[key] = Basis(mesh, element, intorder=intorder)
     return basis
 
