@@ -6,6 +6,9 @@ z[e, q] = T[e, q] u_e (T: basis tabulation, u_e: element dofs),
 
     energy_e = sum_q W w,   grad_e = sum_q W T^T dw/dz,   hess_e = sum_q W T^T d2w/dz2 T.
 
+For a Lagrange field on cells T is not stored: the kernels form it, chunk by chunk, from
+the shared reference tabulation and the inverse Jacobians (measures.Mapped, `mapped`).
+
 A residual term is a density returning a pair (c, q) of arrays, paired with the test
 function's jets: r_e(u; v) = sum_q W c . Dq[v], i.e. R(z) = (dq/dz)^T c (a vector-Jacobian
 product) in place of dw/dz, and its (possibly non-symmetric) Jacobian dR/dz in place of
@@ -522,6 +525,24 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
             "values": values}[kind]
 
 
+def csr_pattern(keys, n):
+    """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
+    row * n + column (repeated keys: one entry), and each key's position in it (the
+    scatter map): one sort of the keys.  Index arrays are int32 while they fit."""
+    order = np.argsort(keys)
+    ordered = keys[order]
+    new = np.empty(ordered.size, bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    rows, columns = np.divmod(ordered[new], n)
+    index = np.int32 if max(rows.size, n) < 2 ** 31 else np.int64
+    position = np.empty(keys.size, index)
+    position[order] = np.cumsum(new) - 1
+    indptr = np.zeros(n + 1, index)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    return indptr, columns.astype(index), position
+
+
 class Assembler:
     """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms; residual
     terms add to the gradient (the residual) and Hessian (its Jacobian), not to the energy."""
@@ -535,13 +556,9 @@ class Assembler:
                 distinct.append(t.global_dofs)
         keys = [(np.repeat(d, d.shape[1], axis=1) * np.int64(ndofs)
                  + np.tile(d, (1, d.shape[1]))).ravel() for d in distinct]
-        rows, cols = np.divmod(np.concatenate(keys), ndofs)
-        pattern = sp.coo_matrix((np.ones(rows.size, np.int8), (rows, cols)), shape=(ndofs, ndofs)).tocsr()
-        pattern.sum_duplicates()
-        self.indices, self.indptr = pattern.indices, pattern.indptr
-        self.nnz = pattern.nnz
-        sorted_keys = np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs + self.indices
-        positions = [np.searchsorted(sorted_keys, k) for k in keys]
+        self.indptr, self.indices, position = csr_pattern(np.concatenate(keys), ndofs)
+        self.nnz = self.indices.size
+        positions = np.split(position, np.cumsum([k.size for k in keys])[:-1])
         self.scatter = [next(p for d, p in zip(distinct, positions) if d.shape == t.global_dofs.shape
                              and np.array_equal(d, t.global_dofs)) for t in terms]
         self._quadratics = {}

@@ -193,8 +193,6 @@ class Cells(Measure):
     def attach(self, field):
         if field.mesh is not self.mesh:
             return self.basis_for(field)  # the error that says so
-        if self._same_quadrature(field.basis):
-            self._bases[(id(field.element), False)] = field.basis  # reuse the field's own basis
         self._first = self._first or field  # fixes the quadrature; bases are built where a
         return None                          # tabulation needs one
 
@@ -205,13 +203,7 @@ class Cells(Measure):
             return self.quadrature
         if self.intorder is not None:
             return get_quadrature(self.mesh.refdom, self.intorder)
-        return self._first.basis.X, self._first.basis.W
-
-    def _same_quadrature(self, basis):
-        if self.quadrature is None and self.intorder is None and self._first is None:
-            return True  # the first field fixes the quadrature
-        X, W = self.reference_quadrature()
-        return X.shape == basis.X.shape and np.array_equal(X, basis.X) and np.array_equal(W, basis.W)
+        return self._first.quadrature
 
     @property
     def weights(self):
@@ -243,7 +235,7 @@ class Cells(Measure):
             return super().tabulation(field, orders)
         X = self.reference_quadrature()[0]
         R = reference_tabulation(field, orders, X)
-        dofs = np.ascontiguousarray(field.basis.element_dofs.T)
+        dofs = np.ascontiguousarray(field.dof_basis.element_dofs.T)
         if 1 not in orders:
             return R, dofs
         mapping = self.mesh.mapping()
@@ -293,7 +285,7 @@ def reference_tabulation(field, orders, X):
     element = field.element
     scalar, d = (element.elem, element.dim) if isinstance(element, ElementVector) else (element, 1)
     dim, nq = X.shape
-    ns = field.basis.Nbfun // d
+    ns = field.dof_basis.Nbfun // d
     phi, dphi = (np.stack(a, axis=-1) for a in zip(*(scalar.lbasis(X, j) for j in range(ns))))
     blocks = [phi[:, None, :] if o == 0 else dphi.transpose(1, 0, 2) if o == 1
               else np.zeros((nq, dim * dim, ns)) for o in orders]  # (q, rows of one component, j)
@@ -364,14 +356,14 @@ def facets(field, where=None, intorder=None, weight=None):
 
 def value_shapes(field, orders):
     """Shape of each requested derivative order of the field at one point."""
-    value = _part(field.basis.basis[0][0], 0).shape[:-2]
+    value = _part(field.dof_basis.basis[0][0], 0).shape[:-2]
     return [value + (field.mesh.dim(),) * o for o in orders]
 
 
 def tabulate_at(field, orders, cells, x):
     """The field's basis at physical points x (dim, E, Q) lying in the cells (E, Q) of its
     mesh: T[e, q, c, k] (components c of the requested orders, local basis functions k)."""
-    basis = field.basis
+    basis = field.dof_basis
     E, Q = cells.shape
     elem = field.element_with_hessian if 2 in orders else field.element
     ref = reference_coordinates(basis.mapping, x.reshape(x.shape[0], -1, 1), cells.ravel())
@@ -414,10 +406,10 @@ class Interface:
         return field.mesh is self.mesh
 
     def basis_for(self, field, hessian=False):
-        return self.base.basis_for(field, hessian) if self._mine(field) else field.basis
+        return self.base.basis_for(field, hessian) if self._mine(field) else field.dof_basis
 
     def attach(self, field):
-        return self.base.attach(field) if self._mine(field) else field.basis
+        return self.base.attach(field) if self._mine(field) else field.dof_basis
 
     weights = property(lambda self: self.base.weights)
     points = property(lambda self: self.base.points)
@@ -442,7 +434,7 @@ class Interface:
             from .locate import locate
             X = self.other_points(field)
             E, Q = X.shape[1:]
-            cells = locate(field.basis, X.reshape(X.shape[0], -1)).reshape(E, Q)
+            cells = locate(field.dof_basis, X.reshape(X.shape[0], -1)).reshape(E, Q)
             slots = np.empty((E, Q), dtype=np.int64)
             owners = np.full((E, Q), -1, dtype=np.int64)
             count = np.zeros(E, dtype=np.int64)
@@ -472,7 +464,7 @@ class Interface:
         T = np.zeros((E, Q, phi.shape[2], S, nloc))
         e, q = np.meshgrid(np.arange(E), np.arange(Q), indexing="ij")
         T[e, q, :, slots, :] = phi
-        dofs = field.basis.element_dofs[:, owners]  # (nloc, E, S)
+        dofs = field.dof_basis.element_dofs[:, owners]  # (nloc, E, S)
         return (np.ascontiguousarray(T.reshape(E, Q, -1, S * nloc)),
                 np.ascontiguousarray(dofs.transpose(1, 2, 0).reshape(E, S * nloc)))
 
