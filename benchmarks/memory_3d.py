@@ -80,7 +80,8 @@ def main():
     assembly = time.perf_counter() - t0
     row = dict(case=args.case, level=args.level, parameters=vars(p), unknowns=int(problem.free.size),
                setup_seconds=setup, first_assembly_seconds=assembly,
-               field_bases=sum(basis_bytes(f.dof_basis) + (basis_bytes(f._basis) if "_basis" in vars(f) else 0)
+               field_bases=sum(basis_bytes(vars(f).get("dof_basis") or f.basis)  # (older: f.basis)
+                               + (basis_bytes(f._basis) if "_basis" in vars(f) else 0)
                                for f in problem.fields),  # held: dof bases (and any full one built)
                terms=terms, terms_after_first_assembly={f"{i}: {t.label}": term_bytes(t)
                                                         for i, t in enumerate(a.terms)},

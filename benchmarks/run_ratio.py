@@ -13,6 +13,7 @@ machine may be shared: read the ratios, not the seconds).  Writes
 benchmarks/results/run_ratio.json.
 
     python benchmarks/run_ratio.py --cases obstacle two-membrane --level 6 --repeat 3
+    python benchmarks/run_ratio.py --before /tmp/before   # an earlier version side by side
 """
 import argparse
 import json
@@ -30,13 +31,15 @@ RESULTS = os.path.join(HERE, "results")
 sys.path.insert(0, HERE)
 
 
-def run_ours(case, level):
-    """`nitsche run` in a child process: (result.json, peak MB: the child's ru_maxrss, which
-    on Linux also counts this small parent's memory at fork time)."""
+def run_ours(case, level, source=None):
+    """`nitsche run` in a child process (source: a checkout of another version to import
+    nitsche from): (result.json, peak MB: the child's ru_maxrss, which on Linux also counts
+    this small parent's memory at fork time)."""
     out = tempfile.mkdtemp(prefix="run_ratio_")
     command = [sys.executable, "-c", "import sys; from nitsche.cli import main; sys.exit(main())"]
+    env = dict(os.environ, PYTHONPATH=source) if source else None
     proc = subprocess.Popen(command + ["run", case, "--level", str(level), "--out", out],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
     _, status, usage = os.wait4(proc.pid, 0)
     if status != 0:
         raise RuntimeError(f"nitsche run {case} --level {level} failed (status {status})")
@@ -52,6 +55,8 @@ def main():
     ap.add_argument("--cases", nargs="+", default=["obstacle", "two-membrane"])
     ap.add_argument("--level", type=int, default=6)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--before", help="a checkout of an earlier version, run side by side "
+                    "(e.g. git worktree add /tmp/before COMMIT)")
     args = ap.parse_args()
     rows = []
     for case in args.cases:
@@ -64,9 +69,13 @@ def main():
                              timings=data["timings"], linear_seconds=linear["times"]["total"],
                              linear_peak_mb=linear["peak_mb"], linear_unknowns=linear["unknowns"]))
             r = runs[-1]
+            if args.before:
+                old, old_peak = run_ours(case, args.level, args.before)
+                r.update(before_seconds=old["seconds"], before_peak_mb=old_peak, before_energy=old["energy"])
             print(f"  {case} L{args.level} rep {rep}: ours {r['seconds']:.2f} s {r['peak_mb']:.0f} MB, "
-                  f"linear {r['linear_seconds']:.2f} s {r['linear_peak_mb']:.0f} MB", file=sys.stderr,
-                  flush=True)
+                  f"linear {r['linear_seconds']:.2f} s {r['linear_peak_mb']:.0f} MB"
+                  + (f", before {r['before_seconds']:.2f} s {r['before_peak_mb']:.0f} MB" if args.before else ""),
+                  file=sys.stderr, flush=True)
         med = lambda key: statistics.median(r[key] for r in runs)
         rows.append(dict(case=case, level=args.level, unknowns=runs[0]["unknowns"],
                          energy=runs[0]["energy"], iterations=runs[0]["iterations"],
@@ -77,12 +86,22 @@ def main():
                          finest_timings={k: statistics.median(r["timings"].get(k, 0.0) for r in runs)
                                          for k in runs[0]["timings"]},
                          runs=runs))
+        if args.before:
+            rows[-1].update(before_seconds=med("before_seconds"), before_peak_mb=med("before_peak_mb"),
+                            before_time_ratio=statistics.median(r["before_seconds"] / r["linear_seconds"]
+                                                                for r in runs),
+                            before_memory_ratio=statistics.median(r["before_peak_mb"] / r["linear_peak_mb"]
+                                                                  for r in runs),
+                            before_energy=runs[0]["before_energy"])
     print(f"{'case':<14}{'unknowns':>9}{'ours s':>8}{'linear s':>9}{'ratio':>7}{'ours MB':>9}"
           f"{'linear MB':>10}{'ratio':>7}  energy")
     for r in rows:
         print(f"{r['case']:<14}{r['unknowns']:>9d}{r['seconds']:>8.2f}{r['linear_seconds']:>9.2f}"
               f"{r['time_ratio']:>7.2f}{r['peak_mb']:>9.0f}{r['linear_peak_mb']:>10.0f}"
               f"{r['memory_ratio']:>7.2f}  {r['energy']:.12g}")
+        if args.before:
+            print(f"{'  before':<14}{'':>9}{r['before_seconds']:>8.2f}{'':>9}{r['before_time_ratio']:>7.2f}"
+                  f"{r['before_peak_mb']:>9.0f}{'':>10}{r['before_memory_ratio']:>7.2f}  {r['before_energy']:.12g}")
     os.makedirs(RESULTS, exist_ok=True)
     with open(os.path.join(RESULTS, "run_ratio.json"), "w") as fh:
         json.dump(dict(rows=rows, cpu_count=os.cpu_count(), date=time.strftime("%Y-%m-%d %H:%M"),
