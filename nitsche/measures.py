@@ -176,8 +176,8 @@ class Cells(Measure):
     kind = "cells"
 
     def __init__(self, mesh, intorder=None, quadrature=None, weight=None):
-        super().__init__(mesh, lambda e: CellBasis(mesh, e, intorder=intorder,
-                                                    quadrature=quadrature), weight)
+        super().__init__(mesh, lambda e: CellBasis(mesh, e, quadrature=self.reference_quadrature()),
+                         weight)  # (a basis only for the tabulations that need one)
         self.intorder, self.quadrature = intorder, quadrature
         self.affine = isinstance(mesh.mapping(), MappingAffine)
 
