@@ -16,6 +16,9 @@ from .measures import boundary_facets, build_facets
 _BASES = weakref.WeakValueDictionary()
 
 
+DOFS = "dofs"  # shared_basis's quadrature of one point per cell
+
+
 def shared_basis(mesh, element, intorder):
     """One scikit-fem basis per mesh, element object and quadrature order (DOFS: one
     point per cell, for the dofs, their locations and the mapping)."""
@@ -33,9 +36,6 @@ def shared_basis(mesh, element, intorder):
     return basis
 
 
-DOFS = "dofs"  # shared_basis's quadrature of one point per cell
-
-
 class Field:
     """The unknown `name` in the finite element space (mesh, element).
 
@@ -50,8 +50,8 @@ class Field:
         `x` (shape (dim, n)); Lagrange elements only for functions (for a vector
         Lagrange element the function returns the components, shape (dim, n)).
 
-    Fields given the same element object on the same mesh share one basis (and the
-    measures build one basis for both): pass one instance to save memory and time.
+    Fields given the same element object on the same mesh share their bases: pass one
+    instance to save memory and time.
 
     dof_basis: a scikit-fem basis with one quadrature point per cell: the dofs, their
     locations and the mapping, without the basis functions at every quadrature point of
