@@ -6,6 +6,9 @@ z[e, q] = T[e, q] u_e (T: basis tabulation, u_e: element dofs),
 
     energy_e = sum_q W w,   grad_e = sum_q W T^T dw/dz,   hess_e = sum_q W T^T d2w/dz2 T.
 
+For a Lagrange field on cells T is not stored: the kernels form it, chunk by chunk, from
+the shared reference tabulation and the inverse Jacobians (measures.Mapped, `mapped`).
+
 A residual term is a density returning a pair (c, q) of arrays, paired with the test
 function's jets: r_e(u; v) = sum_q W c . Dq[v], i.e. R(z) = (dq/dz)^T c (a vector-Jacobian
 product) in place of dw/dz, and its (possibly non-symmetric) Jacobian dR/dz in place of
@@ -30,6 +33,7 @@ from jax.extend.core import Literal
 
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
+from .measures import Mapped
 
 CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small terms, the rest
 _COMPILED = {}
@@ -172,15 +176,25 @@ class Term:
         self.fields = [by_name[name] for name, _, _ in self.layout]
         small, large = CHUNK_POINTS
         self.chunk = max(1, (small if self.nel * self.nq <= small else large) // self.nq)
-        self.T, self.dofs, self.kept = [], [], []
+        # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
+        # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
+        self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
         for (name, parts, _) in self.layout:
             T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
+            mapped = isinstance(T, Mapped)
             # jet components that vanish identically (e.g. P1 Hessians) are left out of the
             # differentiation and enter the density as exact zeros
-            kept = np.flatnonzero(T.any(axis=(0, 1, 3)))
+            kept = np.flatnonzero(T.nonzero_rows() if mapped else T.any(axis=(0, 1, 3)))
             if kept.size == 0:
                 kept = np.arange(1)
-            self.T.append(T if kept.size == T.shape[2] else np.ascontiguousarray(T[:, :, kept]))
+            if mapped:
+                self.T.append(T.R)
+                self.J.append(T.invJ)
+                self.maps.append(T.spec)
+            else:
+                self.T.append(T if kept.size == T.shape[2] else np.ascontiguousarray(T[:, :, kept]))
+                self.J.append(None)
+                self.maps.append(None)
             self.kept.append(tuple(kept.tolist()))
             self.dofs.append(dofs)
         self.offsets = [offsets[f.name] for f in self.fields]
@@ -262,12 +276,13 @@ class Term:
     @property
     def sizes(self):
         """(jet components kept, local dofs) of each field."""
-        return [T.shape[2:] for T in self.T]
+        return [(len(k), T.shape[3]) for T, k in zip(self.T, self.kept)]
 
     @property
-    def shared(self):
-        """Per field: the tabulation is the same on every element (stored once)."""
-        return tuple(T.shape[0] == 1 for T in self.T)
+    def tables(self):
+        """The per-element data of the tabulations, in kernel order: each field's T (or R),
+        then the inverse Jacobians of the Mapped ones; one row where the same on every element."""
+        return list(self.T) + [J for J in self.J if J is not None]
 
     def _theta0(self):
         """The parameters the density reads, at their current values (for tracing)."""
@@ -345,7 +360,7 @@ class Term:
         computed once; the tabulations are released afterwards (they are not needed again)."""
         if not hasattr(self, "_parts"):
             self._parts = self.run("full", np.zeros(1 + max(int(d.max(initial=0)) for d in self.field_dofs)))
-            self.T = self.W = self.x = self.n = self.h = self.alpha0 = None
+            self.T = self.J = self.W = self.x = self.n = self.h = self.alpha0 = None
         return self._parts
 
     def kernel(self, kind):
@@ -354,13 +369,14 @@ class Term:
         if kind in self._kernels:
             return self._kernels[kind]
         key = (kind, self.residual, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
-               tuple(T.shape[1:] for T in self.T), self.shared,
+               tuple((a.shape[0] == 1,) + a.shape[1:] for a in self.tables), tuple(self.maps),
                self.dim, self.has_normal, self.parameter_names)
         if key not in _COMPILED:
             coupling = self.coupling if kind == "full" else None
-            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq, coupling, self.residual)
-            args = [jax.ShapeDtypeStruct((1 if shared else self.chunk,) + T.shape[1:], jnp.float64)
-                    for T, shared in zip(self.T, self.shared)]
+            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq, coupling, self.residual,
+                        self.maps, self.kept)
+            args = [jax.ShapeDtypeStruct((1 if a.shape[0] == 1 else self.chunk,) + a.shape[1:], jnp.float64)
+                    for a in self.tables]
             args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
             args += [jax.ShapeDtypeStruct((self.chunk,) + a.shape[1:], jnp.float64)
                      for a in (self.W, self.x, self.n, self.h, self.alpha0, self.parameter_data(1))]
@@ -378,7 +394,7 @@ class Term:
         outs = []
         for s in range(0, max(nel, 1), self.chunk):  # no elements: one padded chunk, no rows
             sl = slice(s, s + self.chunk) if elements is None else elements[s: s + self.chunk]
-            Ts = [T if shared else _pad(T[sl], self.chunk) for T, shared in zip(self.T, self.shared)]
+            Ts = [a if a.shape[0] == 1 else _pad(a[sl], self.chunk) for a in self.tables]
             rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
             outs.append(kern(*Ts, *rest, self.parameter_data(self.chunk)))
         return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
@@ -417,9 +433,39 @@ def derivative(point_fn, residual):
     return R
 
 
-def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
+def mapped(R, J, spec, kept, chunk, nq):
+    """The kept rows of T[e, q, c, k] of a chunk from a Mapped tabulation (measures.Mapped):
+    values R, gradients sum_i J[e, q, i, m] R[q, (j, i), k], zero Hessians."""
+    orders, vc, dim = spec
+    J = jnp.broadcast_to(J, (chunk, nq, dim, dim))
+    blocks, start = [], 0
+    for o in orders:
+        size = vc * dim ** o
+        Ro = R[0, :, start:start + size]
+        if o == 0:
+            blocks.append(jnp.broadcast_to(Ro, (chunk,) + Ro.shape))
+        elif o == 1:
+            blocks.append(jnp.einsum("eqim,qjik->eqjmk", J, Ro.reshape(nq, vc, dim, -1))
+                          .reshape(chunk, nq, size, -1))
+        else:
+            blocks.append(jnp.zeros((chunk, nq, size, R.shape[-1])))
+        start += size
+    return jnp.concatenate(blocks, axis=2)[:, :, np.array(kept)]
+
+
+def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps=None, kept=None):
     m = sum(mf for mf, _ in sizes)
     first = derivative(point_fn, residual)
+    nf = len(sizes)
+    maps = maps or [None] * nf
+    ng = sum(s is not None for s in maps)
+
+    def split(a):
+        """(T of each field, dofs u of each field, the per-point data) of a kernel's arguments."""
+        tables, Js, us, rest = a[:nf], iter(a[nf:nf + ng]), a[nf + ng:2 * nf + ng], a[2 * nf + ng:]
+        Ts = [T if spec is None else mapped(T, next(Js), spec, k, chunk, nq)
+              for T, spec, k in zip(tables, maps, kept or [None] * nf)]
+        return Ts, us, rest
 
     def value_and_first(z, *rest):
         """(w, dw/dz), or (0, R) for a residual term (it has no energy)."""
@@ -427,7 +473,6 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
 
     def value(z, *rest):
         return jnp.zeros(()) if residual else point_fn(z, *rest)
-    nf = len(sizes)
 
     offsets = np.cumsum([0] + [mf for mf, _ in sizes])
 
@@ -456,20 +501,20 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
                                 for i in range(nf)], axis=1)
 
     def energy(*a):
-        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = split(a)
         z = jets(Ts, us).reshape(chunk * nq, m)
         w = jax.vmap(value)(z, *points(W, x, n, h, alpha0, t)).reshape(chunk, nq)
         return (jnp.sum(W * w, axis=1),)
 
     def gradient(*a):
-        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = split(a)
         z = jets(Ts, us).reshape(chunk * nq, m)
         w, dw = jax.vmap(value_and_first)(z, *points(W, x, n, h, alpha0, t))
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
         return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw)
 
     def full(*a):
-        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = split(a)
         z = jets(Ts, us).reshape(chunk * nq, m)
         px = points(W, x, n, h, alpha0, t)
         w, dw = jax.vmap(value_and_first)(z, *px)
@@ -481,7 +526,7 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
 
     def jacobian(*a):
         """sqrt(W) dw/dz T at every point (w: e.g. a multiplier), shape (chunk, nq, dofs)."""
-        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = split(a)
         z = jets(Ts, us).reshape(chunk * nq, m)
         dw = jax.vmap(jax.grad(point_fn))(z, *points(W, x, n, h, alpha0, t))
         rdw = jnp.sqrt(W)[..., None] * dw.reshape(chunk, nq, m)
@@ -489,13 +534,31 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False):
                                  for T, i, j in zip(Ts, offsets[:-1], offsets[1:])], axis=2),)
 
     def values(*a):
-        Ts, us, (W, x, n, h, alpha0, t) = a[:nf], a[nf:2 * nf], a[2 * nf:]
+        Ts, us, (W, x, n, h, alpha0, t) = split(a)
         z = jets(Ts, us).reshape(chunk * nq, m)
         out = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0, t))
         return tuple(o.reshape((chunk, nq) + o.shape[1:]) for o in out)
 
     return {"energy": energy, "gradient": gradient, "full": full, "jacobian": jacobian,
             "values": values}[kind]
+
+
+def csr_pattern(keys, n):
+    """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
+    row * n + column (repeated keys: one entry), and each key's position in it (the
+    scatter map): one sort of the keys.  Index arrays are int32 while they fit."""
+    order = np.argsort(keys)
+    ordered = keys[order]
+    new = np.empty(ordered.size, bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    rows, columns = np.divmod(ordered[new], n)
+    index = np.int32 if max(rows.size, n) < 2 ** 31 else np.int64
+    position = np.empty(keys.size, index)
+    position[order] = np.cumsum(new) - 1
+    indptr = np.zeros(n + 1, index)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    return indptr, columns.astype(index), position
 
 
 class Assembler:
@@ -522,13 +585,13 @@ class Assembler:
                        for d in distinct):
                 distinct.append(t.global_dofs)
         keys = [self._keys(d, ndofs) for d in distinct]
-        rows, cols = np.divmod(np.concatenate(keys + ([] if keep is None else [keep])), ndofs)
-        pattern = sp.coo_matrix((np.ones(rows.size, np.int8), (rows, cols)), shape=(ndofs, ndofs)).tocsr()
-        pattern.sum_duplicates()
-        self.indices, self.indptr = pattern.indices, pattern.indptr
-        self.nnz = pattern.nnz
-        self.sorted_keys = np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs + self.indices
-        positions = [np.searchsorted(self.sorted_keys, k) for k in keys]
+        counts = [k.size for k in keys]
+        self.indptr, self.indices, position = csr_pattern(
+            np.concatenate(keys + ([] if keep is None else [keep])), ndofs)
+        self.nnz = self.indices.size
+        self.sorted_keys = (np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs
+                            + self.indices)
+        positions = np.split(position[:sum(counts)], np.cumsum(counts)[:-1])
         self.scatter = [next(p for d, p in zip(distinct, positions) if d.shape == t.global_dofs.shape
                              and np.array_equal(d, t.global_dofs)) for t in self.terms]
         self._quadratics = {}  # assembled on this pattern

@@ -3,12 +3,13 @@ import weakref
 
 import numpy as np
 from skfem import Basis, ElementVector
+from skfem.quadrature import get_quadrature
 from skfem.element import ElementH1
 
 from . import partition
 from .elements import with_hessian, provided_orders, own_instance
 from .locate import probes, locate, reference_coordinates
-from .measures import boundary_facets
+from .measures import boundary_facets, build_facets
 
 
 # (id(mesh), id(element), intorder) -> basis, while a field holds it (the basis keeps its
@@ -16,13 +17,25 @@ from .measures import boundary_facets
 _BASES = weakref.WeakValueDictionary()
 
 
+DOFS = "dofs"  # shared_basis's quadrature of one point per cell
+
+
 def shared_basis(mesh, element, intorder):
-    """One scikit-fem basis per mesh, element object and quadrature order (on this rank's
-    cells inside nitsche.partition.local)."""
+    """One scikit-fem basis per mesh, element object and quadrature order (DOFS: one
+    point per cell, for the dofs, their locations and the mapping), on this rank's cells
+    inside nitsche.partition.local."""
     key = (id(mesh), id(element), intorder, partition.key())
     basis = _BASES.get(key)
     if basis is None:
-        basis = _BASES[key] = Basis(mesh, element, intorder=intorder, elements=partition.cells(mesh))
+        if getattr(element, "facet_dofs", 0):  # the dofs on facets number them
+            build_facets(mesh)
+        if intorder is DOFS:
+            X, W = get_quadrature(mesh.refdom, 0)
+            basis = Basis(mesh, element, quadrature=(X.mean(axis=1, keepdims=True), W.sum(keepdims=True)),
+                          elements=partition.cells(mesh))
+        else:
+            basis = Basis(mesh, element, intorder=intorder, elements=partition.cells(mesh))
+        _BASES[key] = basis
     return basis
 
 
@@ -40,8 +53,13 @@ class Field:
         `x` (shape (dim, n)); Lagrange elements only for functions (for a vector
         Lagrange element the function returns the components, shape (dim, n)).
 
-    Fields given the same element object on the same mesh share one basis (and the
-    measures build one basis for both): pass one instance to save memory and time.
+    Fields given the same element object on the same mesh share their bases: pass one
+    instance to save memory and time.
+
+    dof_basis: a scikit-fem basis with one quadrature point per cell: the dofs, their
+    locations and the mapping, without the basis functions at every quadrature point of
+    every cell (the library tabulates those itself, nitsche.measures); `basis`, the
+    scikit-fem basis at the field's quadrature (intorder), is built on first use.
     """
 
     def __init__(self, name, mesh, element, fixed=None, value=0.0, intorder=None):
@@ -55,13 +73,22 @@ class Field:
         self.element = element
         self.element_with_hessian = with_hessian(element)  # used where a density asks for hess
         self.orders = provided_orders(self.element_with_hessian)
-        self.basis = shared_basis(mesh, element, intorder)
+        self.dof_basis = shared_basis(mesh, element, DOFS)
+        X, W = get_quadrature(mesh.refdom, 2 * element.maxdeg if intorder is None else intorder)
+        self.quadrature = X, W  # the reference points and weights of `basis` (skfem's default)
         self.fixed_dofs = self._fixed_dofs(fixed)
         self.fixed_values = self._fixed_values(value)
 
     @property
+    def basis(self):
+        """The scikit-fem basis at the field's quadrature (built on first use)."""
+        if "_basis" not in self.__dict__:
+            self._basis = shared_basis(self.mesh, self.element, self.intorder)
+        return self._basis
+
+    @property
     def ndofs(self):
-        return self.basis.N
+        return self.dof_basis.N
 
     @property
     def is_lagrange(self):
@@ -74,7 +101,7 @@ class Field:
         if isinstance(fixed, dict):
             held = {where: self._component_dofs(where, which) for where, which in fixed.items()}
         elif isinstance(fixed, str) or callable(fixed):
-            held = {fixed: np.asarray(self.basis.get_dofs(self._boundary(fixed)).all(), dtype=np.int64)}
+            held = {fixed: np.asarray(self.dof_basis.get_dofs(self._boundary(fixed)).all(), dtype=np.int64)}
         else:
             return self._dof_indices(fixed)
         # the dofs each named boundary holds (its reaction), "boundary" meaning all of them
@@ -111,7 +138,7 @@ class Field:
                 raise ValueError(f"field '{self.name}': component {c!r} on {where!r}: use 'all', "
                                  f"an index 0..{dim - 1} or one of {list('xyz'[:dim])}")
             index.append(i)
-        dofs = self.basis.get_dofs(self._boundary(where))
+        dofs = self.dof_basis.get_dofs(self._boundary(where))
         return np.concatenate([np.asarray(dofs.all(f"u^{i + 1}"), dtype=np.int64) for i in index])
 
     def _dof_indices(self, fixed):
@@ -125,19 +152,19 @@ class Field:
             return np.full(self.fixed_dofs.size, float(value))
         if self.is_lagrange and isinstance(self.element, ElementVector):
             # value(x) -> (dim, n): component j % dim of dof j (dofs interleaved, as in prolongate)
-            x = self.basis.doflocs[:, self.fixed_dofs]
+            x = self.dof_basis.doflocs[:, self.fixed_dofs]
             v = np.asarray(value(x), dtype=float).reshape(self.mesh.dim(), -1)
             return v[self.fixed_dofs % self.mesh.dim(), np.arange(self.fixed_dofs.size)]
         if not self.is_lagrange:
             raise ValueError(f"field '{self.name}': a function as fixed value needs a scalar "
                              "Lagrange element; give a number instead")
-        return np.asarray(value(self.basis.doflocs[:, self.fixed_dofs]), dtype=float)
+        return np.asarray(value(self.dof_basis.doflocs[:, self.fixed_dofs]), dtype=float)
 
     def interpolate(self, fun):
         """Nodal interpolant of `fun(x)` (Lagrange elements)."""
         if not self.is_lagrange:
             raise ValueError(f"field '{self.name}': nodal interpolation needs a Lagrange element")
-        return np.asarray(fun(self.basis.doflocs), dtype=float)
+        return np.asarray(fun(self.dof_basis.doflocs), dtype=float)
 
     def prolongate(self, coarse, u):
         """This field's dofs of the coarse field's function `u` (exact for nested Lagrange
@@ -145,7 +172,7 @@ class Field:
         extrapolation of the nearest coarse cell)."""
         if not (self.is_lagrange and coarse.is_lagrange):
             return self._prolongate_by_dofs(coarse, u)
-        values = probes(coarse.basis, self.basis.doflocs, outside="nearest") @ u
+        values = probes(coarse.dof_basis, self.dof_basis.doflocs, outside="nearest") @ u
         if isinstance(self.element, ElementVector):  # rows component-major, dofs interleaved
             j = np.arange(self.ndofs)
             values = values.reshape(self.mesh.dim(), -1)[j % self.mesh.dim(), j]
@@ -158,7 +185,7 @@ class Field:
         """Value (n,), gradient (dim, n) and Hessian (dim, dim, n) of the function with
         dofs u at the points x (dim, n), from the cell that holds each point
         (element-wise for non-conforming elements)."""
-        b, elem = self.basis, self.element_with_hessian
+        b, elem = self.dof_basis, self.element_with_hessian
         cells = locate(b, x)
         X = reference_coordinates(b.mapping, x[:, :, None], cells)
         out = [0.0, 0.0, 0.0]
@@ -174,7 +201,7 @@ class Field:
     def _dof_kinds(self):
         """Name of every global dof (from the element's dofnames) and, for normal
         derivative dofs, the normal the dof is taken along (2, ndofs)."""
-        e, b = self.element, self.basis
+        e, b = self.element, self.dof_basis
         names = list(e.dofnames)
         nn, nf = e.nodal_dofs, e.facet_dofs
         if isinstance(e, ElementVector) or e.interior_dofs or e.edge_dofs or \
@@ -203,7 +230,7 @@ class Field:
         midpoints) to the coarse function: exact for nested BFS spaces; for Morley (not
         nested) an interpolant, used as the initial guess of the finer level."""
         kind, normal = self._dof_kinds()
-        jets = coarse.jets_at(np.asarray(u, dtype=float), self.basis.doflocs)
+        jets = coarse.jets_at(np.asarray(u, dtype=float), self.dof_basis.doflocs)
         v, g, H = jets["value"], jets["grad"], jets["hess"]
         out = np.zeros(self.ndofs)
         for name, val in (("u", v), ("u_x", g[0]), ("u_y", g[1]),

@@ -57,8 +57,8 @@ def vertex_values(field, u):
     """Values of a Lagrange field at the mesh vertices (the first nodal dofs)."""
     nv = field.mesh.nvertices
     if isinstance(field.element, ElementVector):
-        return np.asarray(u[field.basis.nodal_dofs[:, :nv]]).T  # (nv, d)
-    return np.asarray(u[field.basis.nodal_dofs[0, :nv]])
+        return np.asarray(u[field.dof_basis.nodal_dofs[:, :nv]]).T  # (nv, d)
+    return np.asarray(u[field.dof_basis.nodal_dofs[0, :nv]])
 
 
 def vertex_multiplier(problem, values, mesh):
@@ -98,7 +98,7 @@ def point_values(field, u, mesh):
     comps = field.mesh.dim() if isinstance(field.element, ElementVector) else 1
     if mesh is field.mesh and field.is_lagrange and field.ndofs == comps * mesh.nvertices:
         return vertex_values(field, u)
-    v = (probes(field.basis, mesh.p) @ u).reshape(comps, -1) if field.is_lagrange else \
+    v = (probes(field.dof_basis, mesh.p) @ u).reshape(comps, -1) if field.is_lagrange else \
         field.jets_at(np.asarray(u, dtype=float), mesh.p)["value"][None]
     return v[0] if comps == 1 else v.T
 

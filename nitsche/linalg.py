@@ -286,7 +286,7 @@ def near_nullspace(problem):
         off, n, d = problem.offsets[f.name], f.ndofs, f.mesh.dim()
         if isinstance(f.element, ElementVector) and f.is_lagrange:
             j = np.arange(n)
-            comp, X = j % d, f.basis.doflocs
+            comp, X = j % d, f.dof_basis.doflocs
             for i in range(d):
                 v = np.zeros(problem.ndofs)
                 v[off + j[comp == i]] = 1.0

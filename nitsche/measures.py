@@ -17,7 +17,9 @@ import time
 import weakref
 
 import numpy as np
-from skfem import CellBasis, FacetBasis
+from skfem import CellBasis, ElementVector, FacetBasis, Mesh
+from skfem.element import ElementH1
+from skfem.mapping import MappingAffine
 from skfem.quadrature import get_quadrature
 
 from . import partition
@@ -43,9 +45,31 @@ def cell_diameters(mesh):
     return _DIAMETERS[id(mesh)]
 
 
+def build_facets(mesh):
+    """Set mesh.facets and mesh.t2f as scikit-fem builds them (the sorted vertex tuples of
+    the cells' facets in lexicographic order, and each cell's facets), unless built: the
+    tuple (a_0 <= ... <= a_m) is the integer key sum_i a_i N^(m-i) (N vertices), so one
+    np.unique of integers replaces scikit-fem's np.unique over columns (4x faster)."""
+    if hasattr(mesh, "_facets") or hasattr(mesh, "_t2f") or \
+            type(mesh)._init_facets is not Mesh._init_facets:  # e.g. hexahedra: unsorted facets
+        return
+    local = mesh.elem.refdom.facets
+    columns = np.sort(np.hstack([mesh.t[ix] for ix in local]), axis=0).astype(np.int64)
+    N = mesh.p.shape[1]
+    if float(N) ** columns.shape[0] >= 2.0 ** 63:  # keys would overflow: scikit-fem's way
+        return
+    key = columns[0]
+    for row in columns[1:]:
+        key = key * N + row
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    mesh._facets = np.ascontiguousarray(columns[:, first].astype(mesh.t.dtype))
+    mesh._t2f = inverse.reshape(len(local), mesh.t.shape[1])
+
+
 def boundary_facets(mesh):
     """Indices of the facets that belong to one cell only (as mesh.boundary_facets(),
     counted from t2f instead of building the facet-to-cell map)."""
+    build_facets(mesh)
     return np.flatnonzero(np.bincount(mesh.t2f.ravel(), minlength=mesh.facets.shape[1]) == 1)
 
 
@@ -147,14 +171,19 @@ class Measure:
 
 
 class Cells(Measure):
-    """The cells of a mesh (this rank's inside nitsche.partition.local)."""
+    """The cells of a mesh (this rank's inside nitsche.partition.local), from the mesh's
+    mapping x = F_e(X) and a reference quadrature (X_q, w_q): W = |det DF_e(X_q)| w_q,
+    x = F_e(X_q) (x = A_e X + b_e on affine cells); Lagrange fields are tabulated without a
+    scikit-fem basis (Mapped)."""
     kind = "cells"
 
     def __init__(self, mesh, intorder=None, quadrature=None, weight=None):
         self.elements = partition.cells(mesh)  # None: all
-        super().__init__(mesh, lambda e: CellBasis(mesh, e, intorder=intorder, quadrature=quadrature,
-                                                    elements=self.elements), weight)
-        self.intorder = intorder
+        super().__init__(mesh, lambda e: CellBasis(mesh, e, quadrature=self.reference_quadrature(),
+                                                    elements=self.elements),
+                         weight)  # (a basis only for the tabulations that need one)
+        self.intorder, self.quadrature = intorder, quadrature
+        self.affine = isinstance(mesh.mapping(), MappingAffine)
 
     @property
     def h(self):
@@ -167,20 +196,116 @@ class Cells(Measure):
         return np.arange(self.mesh.nelements) if self.elements is None else self.elements
 
     def attach(self, field):
-        if field.mesh is self.mesh and self._same_quadrature(field.basis) and self._same_cells(field.basis):
-            self._bases[(id(field.element), False)] = field.basis  # reuse the field's own basis
-        return super().attach(field)
+        if field.mesh is not self.mesh:
+            return self.basis_for(field)  # the error that says so
+        self._first = self._first or field  # fixes the quadrature; bases are built where a
+        return None                          # tabulation needs one
 
-    def _same_cells(self, basis):
-        if self.elements is None or basis.tind is None:
-            return self.elements is None and basis.tind is None
-        return np.array_equal(self.elements, basis.tind)
+    def reference_quadrature(self):
+        """Points X (dim, q) and weights w (q,) on the reference cell: the given ones, those
+        of intorder, or the first field's."""
+        if self.quadrature is not None:
+            return self.quadrature
+        if self.intorder is not None:
+            return get_quadrature(self.mesh.refdom, self.intorder)
+        return self._first.quadrature
 
-    def _same_quadrature(self, basis):
-        if self.intorder is None:
-            return self.basis is None
-        X, W = get_quadrature(self.mesh.refdom, self.intorder)
-        return X.shape == basis.X.shape and np.array_equal(X, basis.X) and np.array_equal(W, basis.W)
+    def _mine(self, a, axis=0):
+        """a restricted to this rank's cells along `axis` (all cells: a itself)."""
+        return a if self.elements is None else np.take(a, self.elements, axis=axis)
+
+    @property
+    def weights(self):
+        mapping, (X, w) = self.mesh.mapping(), self.reference_quadrature()
+        J = np.abs(mapping.detA)[:, None] if self.affine else np.abs(mapping.detDF(X))
+        W = self._mine(J) * w[None, :]
+        return W if self.weight is None else weighted(W, self.weight, self.points, self.kind)
+
+    @property
+    def points(self):
+        mapping, X = self.mesh.mapping(), self.reference_quadrature()[0]
+        if not self.affine:
+            return self._mine(np.asarray(mapping.F(X)), axis=1)
+        x = np.matmul(np.moveaxis(mapping.A, -1, 0), X) + mapping.b.T[:, :, None]  # (e, dim, q)
+        return np.ascontiguousarray(np.moveaxis(self._mine(x), 1, 0))
+
+    @property
+    def nelems(self):
+        return self.cells.size
+
+    def tabulation(self, field, orders):
+        """A Lagrange field's values and gradients without a scikit-fem basis: the reference
+        tabulation (shared by all cells) and, with gradients, the inverse Jacobians
+        (Mapped); other elements, or non-zero Hessians, from the basis."""
+        lagrange = isinstance(field.element.elem if isinstance(field.element, ElementVector)
+                              else field.element, ElementH1)
+        if not (lagrange and field.mesh is self.mesh) or \
+                (2 in orders and not has_zero_hessian(field.element_with_hessian)):
+            return super().tabulation(field, orders)
+        X = self.reference_quadrature()[0]
+        R = reference_tabulation(field, orders, X)
+        dofs = np.ascontiguousarray(field.dof_basis.dofs.element_dofs[:, self.cells].T)
+        if 1 not in orders:
+            return R, dofs
+        mapping = self.mesh.mapping()
+        invJ = self._mine(mapping.invA.transpose(2, 0, 1))[:, None] if self.affine \
+            else self._mine(mapping.invDF(X).transpose(2, 3, 0, 1))  # (e, q or 1, i, m) = d xi_i / d x_m
+        d = field.element.dim if isinstance(field.element, ElementVector) else 1
+        return Mapped(R, np.ascontiguousarray(invJ), orders, d, X.shape[0]), dofs
+
+
+class Mapped:
+    """A Lagrange field's tabulation T[e, q, c, k] kept factored: the reference tabulation
+    R[0, q, c, k] (values, reference gradients d phi / d xi, zero Hessians, in the rows of
+    T) and the inverse Jacobians invJ[e, q, i, m] = d xi_i / d x_m (one q on affine cells):
+
+        value rows T = R,   gradient rows T[e, q, (j, m), k] = sum_i invJ[e, q, i, m] R[q, (j, i), k]
+
+    (j: a component of a vector field), formed inside the compiled kernels (assembly.mapped):
+    dim^2 numbers per point or cell are stored instead of a (rows x functions) block."""
+
+    def __init__(self, R, invJ, orders, components, dim):
+        self.R, self.invJ = R, invJ
+        self.spec = (tuple(orders), components, dim)  # static: how rows are formed
+
+    def nonzero_rows(self):
+        """Rows of T that are not identically zero: values and gradients of the
+        components that R moves (Hessians of degree one are zero)."""
+        (orders, vc, dim), R = self.spec, self.R[0]
+        rows, start = [], 0
+        for o in orders:
+            size = vc * dim ** o
+            block = R[:, start:start + size]
+            if o == 0:
+                rows.append(block.any(axis=(0, 2)))
+            elif o == 1:
+                rows.append(np.repeat(block.reshape(R.shape[0], vc, dim, -1).any(axis=(0, 2, 3)), dim))
+            else:
+                rows.append(np.zeros(size, bool))
+            start += size
+        return np.concatenate(rows)
+
+
+def reference_tabulation(field, orders, X):
+    """R[0, q, c, k] of a Lagrange field at reference points X (dim, q): values phi_j(X_q),
+    reference gradients d phi_j / d xi (X_q), zero Hessians (degree one); for a vector
+    field with d components, function k = j d + i is phi_j in component i, and the rows
+    of an order are component-major (as the field's jets)."""
+    element = field.element
+    scalar, d = (element.elem, element.dim) if isinstance(element, ElementVector) else (element, 1)
+    dim, nq = X.shape
+    ns = field.dof_basis.Nbfun // d
+    phi, dphi = (np.stack(a, axis=-1) for a in zip(*(scalar.lbasis(X, j) for j in range(ns))))
+    blocks = [phi[:, None, :] if o == 0 else dphi.transpose(1, 0, 2) if o == 1
+              else np.zeros((nq, dim * dim, ns)) for o in orders]  # (q, rows of one component, j)
+    R = np.zeros((1, nq, sum(d * b.shape[1] for b in blocks), ns, d))
+    start = 0
+    for b in blocks:  # component i of an order of m rows: rows start + i m .. start + (i+1) m
+        m = b.shape[1]
+        for i in range(d):
+            R[0, :, start + i * m: start + (i + 1) * m, :, i] = b
+        start += d * m
+    return R.reshape(1, nq, -1, ns * d)
 
 
 class Facets(Measure):
@@ -242,14 +367,14 @@ def facets(field, where=None, intorder=None, weight=None):
 
 def value_shapes(field, orders):
     """Shape of each requested derivative order of the field at one point."""
-    value = _part(field.basis.basis[0][0], 0).shape[:-2]
+    value = _part(field.dof_basis.basis[0][0], 0).shape[:-2]
     return [value + (field.mesh.dim(),) * o for o in orders]
 
 
 def tabulate_at(field, orders, cells, x):
     """The field's basis at physical points x (dim, E, Q) lying in the cells (E, Q) of its
     mesh: T[e, q, c, k] (components c of the requested orders, local basis functions k)."""
-    basis = field.basis
+    basis = field.dof_basis
     E, Q = cells.shape
     elem = field.element_with_hessian if 2 in orders else field.element
     ref = reference_coordinates(basis.mapping, x.reshape(x.shape[0], -1, 1), cells.ravel())
@@ -293,10 +418,10 @@ class Interface:
         return field.mesh is self.mesh
 
     def basis_for(self, field, hessian=False):
-        return self.base.basis_for(field, hessian) if self._mine(field) else field.basis
+        return self.base.basis_for(field, hessian) if self._mine(field) else field.dof_basis
 
     def attach(self, field):
-        return self.base.attach(field) if self._mine(field) else field.basis
+        return self.base.attach(field) if self._mine(field) else field.dof_basis
 
     weights = property(lambda self: self.base.weights)
     points = property(lambda self: self.base.points)
@@ -321,7 +446,7 @@ class Interface:
             from .locate import locate
             X = self.other_points(field)
             E, Q = X.shape[1:]
-            cells = locate(field.basis, X.reshape(X.shape[0], -1)).reshape(E, Q)
+            cells = locate(field.dof_basis, X.reshape(X.shape[0], -1)).reshape(E, Q)
             slots = np.empty((E, Q), dtype=np.int64)
             owners = np.full((E, Q), -1, dtype=np.int64)
             count = np.zeros(E, dtype=np.int64)
@@ -351,7 +476,7 @@ class Interface:
         T = np.zeros((E, Q, phi.shape[2], S, nloc))
         e, q = np.meshgrid(np.arange(E), np.arange(Q), indexing="ij")
         T[e, q, :, slots, :] = phi
-        dofs = field.basis.dofs.element_dofs[:, owners]  # (nloc, E, S)
+        dofs = field.dof_basis.dofs.element_dofs[:, owners]  # (nloc, E, S)
         return (np.ascontiguousarray(T.reshape(E, Q, phi.shape[2], S * nloc)),
                 np.ascontiguousarray(dofs.transpose(1, 2, 0).reshape(E, S * nloc)))
 

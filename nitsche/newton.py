@@ -181,7 +181,8 @@ class Result:
         return "\n".join(lines)
 
 
-def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=None, lift=True):
+def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=None, lift=True,
+           minimum_check=True):
     """Minimize J_h from x0 (fixed dofs are set to their values; lift: where x0's differ
     from the prescribed ones, the increment is carried into the interior first, see
     Problem.lift, unless that start is not finite); for a problem with
@@ -195,7 +196,9 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     backtracks (Armijo) on J_h.  A stationary point is reported converged only if it is
     a minimum: the Hessian on the free dofs positive definite there (the solver's
     is_positive_definite: CHOLMOD a Cholesky factor of that matrix, SuperLU the pivots
-    of its symmetric LU, AMG an LOBPCG estimate).  Never returns silently unconverged:
+    of its symmetric LU, AMG an LOBPCG estimate); minimum_check=False skips that check (a
+    coarse level of a nested chain, only a starting guess for the next level, whose own
+    check decides).  Never returns silently unconverged:
     see Result.converged; Result.feasible says whether a constraint looks infeasible.
     """
     check_options(rtol, maxiter)
@@ -313,7 +316,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     if shifts and not converged:
         reason += (f" (the Hessian of J_h was not positive definite at {len(shifts)} iterations, "
                    f"which took shifted steps)")
-    if converged and problem.symmetric:
+    if converged and problem.symmetric and minimum_check:
         t = time.perf_counter()
         if not lin.is_positive_definite(A):
             converged, reason = False, (

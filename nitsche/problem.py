@@ -148,8 +148,12 @@ class Problem:
             if not energy:
                 raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
                                  "constraint's mesh to bound its multiplier")
-            B = t.with_pointwise(c.scaled_multiplier())  # on the constraint's tabulations
-            B.alpha0 = np.ones(t.nel)
+            B = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
+                     f"the multiplier of constraint '{c.name}'", vector=True,
+                     parameters=self.parameters)  # the multiplier's jets only, alpha0 = 1
+            if not any(T.any() for T in B.T):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
+                out[c.name] = np.full(t.nel, np.inf)
+                continue
             out[c.name] = local_limits(*multiplier_jacobian(B, c, x), t.cells, free,
                                        lambda cells: [cell_hessians(e, x, cells) for e in energy])
         return out

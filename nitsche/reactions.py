@@ -12,10 +12,10 @@ import numpy as np
 def dof_names(field):
     """The name of every dof of a field: 'u', 'u^1', ... for values, 'u_x', 'u_n', ... for
     derivatives (from the element's local dof names)."""
-    names, d = np.empty(field.ndofs, dtype=object), field.basis.dofs
+    names, d = np.empty(field.ndofs, dtype=object), field.dof_basis.dofs
     rows = [r for block in (d.nodal_dofs, d.edge_dofs, d.facet_dofs, d.interior_dofs)
             for r in block]  # the order of the element's dofnames
-    for name, row in zip(field.basis.elem.dofnames, rows):
+    for name, row in zip(field.dof_basis.elem.dofnames, rows):
         names[row] = name
     return names
 
@@ -34,12 +34,12 @@ def reactions(problem, x):
             continue
         R = g[problem.offsets[f.name]: problem.offsets[f.name] + f.ndofs]
         names = dof_names(f)
-        values = [c for c in dict.fromkeys(f.basis.elem.dofnames) if c == "u" or c.startswith("u^")]
+        values = [c for c in dict.fromkeys(f.dof_basis.elem.dofnames) if c == "u" or c.startswith("u^")]
         regions = {"all": f.fixed_dofs}
         if f.held:  # boundaries named in `fixed`: the dofs each one holds (corners split)
             regions.update(f.held)
         for name, facets in ({} if f.held else f.mesh.boundaries or {}).items():
-            held = np.intersect1d(np.asarray(f.basis.get_dofs(facets).all(), int), f.fixed_dofs)
+            held = np.intersect1d(np.asarray(f.dof_basis.get_dofs(facets).all(), int), f.fixed_dofs)
             if held.size:
                 regions[name] = held
         out[f.name] = {name: [float(R[d[names[d] == c]].sum()) for c in values]

@@ -45,13 +45,16 @@ def nested(make_problem, levels, solve=None, **newton_options):
     solve(problem, x0, **newton_options) (default Problem.minimize; a case's load path).
     Yields (k, problem, result); stops after a level that does not converge.  I u_{k-1}
     differs from the prescribed values only by interpolation: it is not lifted (lift=False,
-    which saves a factorization per level) unless newton_options say so."""
+    which saves a factorization per level) unless newton_options say so.  Only the last
+    level's minimum is checked (newton's minimum_check, one factorization per level):
+    a coarser level is the next one's starting guess."""
     newton_options.setdefault("lift", False)
-    prev, solve = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o))
+    prev, solve, levels = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o)), list(levels)
+    check = newton_options.pop("minimum_check", True)
     for k in levels:
         problem = make_problem(k)
         result = solve(problem, prolongate(prev[0], prev[1].x, problem) if prev else None,
-                       **newton_options)
+                       minimum_check=check and k == levels[-1], **newton_options)
         yield k, problem, result
         if not result.converged:
             return

@@ -263,7 +263,7 @@ class Supermesh:
 
     def attach(self, field):
         self._body(field)
-        return field.basis
+        return field.dof_basis
 
     def release(self):
         pass
@@ -272,7 +272,7 @@ class Supermesh:
         cells, x = self._body(field)
         Q = x.shape[2]
         T = tabulate_at(field, orders, np.repeat(cells[:, None], Q, axis=1), x)
-        return T, np.ascontiguousarray(field.basis.dofs.element_dofs[:, cells].T)
+        return T, np.ascontiguousarray(field.dof_basis.dofs.element_dofs[:, cells].T)
 
     def shapes(self, field, orders):
         return value_shapes(field, orders)

@@ -246,3 +246,21 @@ def test_the_readme_example_runs_and_converges():
     result = scope["result"]
     assert result.converged and result.active_count > 0
     assert result.max_violation < 1e-2
+
+
+def test_a_cell_measure_takes_its_fields_quadrature_also_for_tabulations_from_a_basis():
+    """P2 Hessians (lap u) are tabulated from a scikit-fem basis; with the field's own
+    quadrature order (intorder=5, 7 points) that basis uses the same points as the
+    weights: the same J_h as with the order given to the measure."""
+    mesh = MeshTri().refined(2)
+
+    def solve(field_order, measure_order):
+        u = ni.Field("u", mesh, ElementTriP2(), fixed="boundary", intorder=field_order)
+        c = ni.Inequality(gap=lambda u: u + 0.01, multiplier=lambda u: -lap(u) - 1.0,
+                          scaling=ni.Scaling(0.01, h_power=2, stiffness=1.0),
+                          on=ni.cells(u, intorder=measure_order), name="c")
+        p = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - u, [c])
+        assert all(t.nq == 7 for t in p.assembler.terms)
+        return p.minimize().check().energy
+
+    assert solve(5, None) == pytest.approx(solve(5, 5), rel=1e-13)

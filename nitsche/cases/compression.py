@@ -80,7 +80,7 @@ def build(level, degree, p):
 def path(problem, p):
     """t = 1/steps, ..., 1: the press (the top) moved down by compression R t."""
     f = problem.by_name["u"]
-    top = f.basis.get_dofs(f.mesh.boundaries["top"])
+    top = f.dof_basis.get_dofs(f.mesh.boundaries["top"])
 
     def press(problem, t):
         values = np.zeros(f.ndofs)

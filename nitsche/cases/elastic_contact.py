@@ -124,7 +124,7 @@ def _element(degree):
 
 
 def _dofs_on(field, where, component=None):
-    dofs = field.basis.get_dofs(field.mesh.facets_satisfying(where, boundaries_only=True))
+    dofs = field.dof_basis.get_dofs(field.mesh.facets_satisfying(where, boundaries_only=True))
     return dofs.all() if component is None else dofs.all(f"u^{component}")
 
 
@@ -142,7 +142,7 @@ def build(level, degree, p):
         probe2 = ni.Field("u2", m2, e)
         fix1 = np.concatenate([_dofs_on(probe1, lambda x: x[1] < -p.L + 1e-12),
                                _dofs_on(probe1, lambda x: x[0] < 1e-12, 1)])
-        top2 = probe2.basis.get_dofs("top").all()
+        top2 = probe2.dof_basis.get_dofs("top").all()
         fix2 = np.concatenate([top2, _dofs_on(probe2, lambda x: x[0] < 1e-12, 1)])
         u1 = ni.Field("u1", m1, e, fixed=fix1)
         u2 = ni.Field("u2", m2, e, fixed=fix2,

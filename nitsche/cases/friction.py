@@ -98,7 +98,7 @@ def _move_top(problem, p, d):
     """Body 2's top moved by (d, -delta)."""
     f = problem.by_name["u2"]
     top = f.mesh.facets_satisfying(lambda x: x[1] > f.mesh.p[1].max() - 1e-12, boundaries_only=True)
-    dofs = f.basis.get_dofs(top)
+    dofs = f.dof_basis.get_dofs(top)
     values = np.zeros(f.ndofs)
     values[dofs.all("u^1")], values[dofs.all("u^2")] = d, -p.delta
     problem.set_values("u2", values)

@@ -95,7 +95,7 @@ def difference(coarse_problem, coarse_x, problem, x):
 def vertex_values(problem, x):
     out = {}
     for f in problem.fields:
-        out[f.name] = problem.split(x)[f.name][f.basis.nodal_dofs[0]]
+        out[f.name] = problem.split(x)[f.name][f.dof_basis.nodal_dofs[0]]
     return out
 
 

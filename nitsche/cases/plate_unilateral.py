@@ -65,7 +65,7 @@ def build(level, degree, p):
 def vertex_deflection(problem, x):
     """Deflection at the mesh vertices (the u dofs of the BFS field)."""
     f = problem.fields[0]
-    return problem.split(x)[f.name][f.basis.nodal_dofs[0]]
+    return problem.split(x)[f.name][f.dof_basis.nodal_dofs[0]]
 
 
 def edge_of(xq):

@@ -1,0 +1,140 @@
+"""3D: the memory of the assembly data against that of the linear solver, one level.
+
+For a 3D case at one level (default: membrane-solid, cube of trilinear hexahedra, vector
+Q1, plus a Q1 membrane), prints the bytes held by
+  - the fields' scikit-fem bases held (dof_basis: one point per cell; a full basis with
+    the basis functions at every quadrature point of every cell only if one was built),
+  - the terms' assembly data: tabulations (or reference tabulations and inverse Jacobians),
+    weights, points, normals, local-to-global maps, the element parts of quadratic terms,
+  - the assembler's sparsity pattern and scatter maps,
+  - the Newton matrix (free-free block, CSR),
+against the linear solver of the first Newton matrix: the CHOLMOD factor (nnz(L) x 12
+bytes: values and row indices) or the smoothed-aggregation AMG hierarchy (the operators,
+prolongators and restrictors of every level), and the process's peak memory (VmHWM).
+Writes benchmarks/results/memory_3d.json (one row per run, appended).
+
+    python benchmarks/memory_3d.py --case membrane-solid --level 2 --solver amg
+"""
+import argparse
+import json
+import os
+import sys
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
+
+
+def nbytes(*arrays):
+    """Bytes of the distinct arrays (None skipped, views counted by their base once)."""
+    seen, total = set(), 0
+    for a in arrays:
+        if a is None or not hasattr(a, "nbytes"):
+            continue
+        base = a if a.base is None else a.base
+        if id(base) in seen:
+            continue
+        seen.add(id(base))
+        total += base.nbytes if hasattr(base, "nbytes") else a.nbytes
+    return total
+
+
+def basis_bytes(basis):
+    arrays = [basis.dx, basis.X, basis.W]
+    for functions in basis.basis:
+        for df in functions:
+            arrays += [np.asarray(f) for f in df.astuple if f is not None]
+    return nbytes(*arrays)
+
+
+def term_bytes(t):
+    """Bytes of a term's tabulations and per-point data (before a quadratic term's first
+    assembly releases them), or of its element parts (after)."""
+    arrays = list(t.T or []) + list(getattr(t, "J", None) or []) + [t.W, t.x, t.n, t.h, t.alpha0]
+    arrays += [t.global_dofs] + list(t.dofs) + list(t.field_dofs) + list(getattr(t, "_parts", ()))
+    return nbytes(*arrays)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", default="membrane-solid")
+    ap.add_argument("--level", type=int, default=2)
+    ap.add_argument("--set", nargs="*", default=[], help="case parameters name=value")
+    ap.add_argument("--solver", choices=["cholmod", "amg", "both"], default="both")
+    args = ap.parse_args()
+    from nitsche.cases import get
+    case = get(args.case)
+    p = case.parameters(dict(s.split("=", 1) for s in args.set))
+    t0 = time.perf_counter()
+    problem = case.problem(args.level, 1, p)
+    setup = time.perf_counter() - t0
+    x = problem.initial(None)
+    a = problem.assembler
+    terms = {f"{i}: {t.label}": term_bytes(t) for i, t in enumerate(a.terms)}  # before assembly
+    t0 = time.perf_counter()
+    _, _, A = problem.newton_system(x)
+    assembly = time.perf_counter() - t0
+    row = dict(case=args.case, level=args.level, parameters=vars(p), unknowns=int(problem.free.size),
+               setup_seconds=setup, first_assembly_seconds=assembly,
+               field_bases=sum(basis_bytes(vars(f).get("dof_basis") or f.basis)  # (older: f.basis)
+                               + (basis_bytes(f._basis) if "_basis" in vars(f) else 0)
+                               for f in problem.fields),  # held: dof bases (and any full one built)
+               terms=terms, terms_after_first_assembly={f"{i}: {t.label}": term_bytes(t)
+                                                        for i, t in enumerate(a.terms)},
+               value_terms=sum(term_bytes(t) for t in problem.value_terms),
+               pattern=nbytes(a.indices, a.indptr, *a.scatter),
+               quadratic_matrices=sum(nbytes(g0, d, K.data, K.indices, K.indptr)
+                                      for (_, g0, d, K) in a._quadratics.values()),
+               newton_matrix=nbytes(A.data, A.indices, A.indptr))
+    row["assembly_data"] = sum(row["terms"].values()) + row["pattern"]
+    if args.solver in ("cholmod", "both"):
+        from sksparse.cholmod import analyze
+        t0 = time.perf_counter()
+        factor = analyze(A.tocsc())
+        factor.cholesky_inplace(A.tocsc())
+        L = factor.L()
+        row["cholmod_seconds"] = time.perf_counter() - t0
+        row["cholmod_factor"] = int(L.nnz) * 12
+        del L, factor
+    if args.solver in ("amg", "both"):
+        from nitsche.linalg import AMGCG
+        amg = AMGCG()
+        amg.prepare(problem)
+        t0 = time.perf_counter()
+        amg._build(A)
+        row["amg_seconds"] = time.perf_counter() - t0
+        row["amg_hierarchy"] = sum(nbytes(M.data, M.indices, M.indptr) for lvl in amg.ml.levels
+                                   for M in (getattr(lvl, k, None) for k in ("A", "P", "R"))
+                                   if M is not None and hasattr(M, "data"))
+    with open("/proc/self/status") as fh:
+        row["peak_mb"] = next(int(line.split()[1]) for line in fh if line.startswith("VmHWM")) / 1024
+    mb = lambda b: f"{b / 2**20:9.1f} MB"
+    print(f"{args.case} level {args.level}: {row['unknowns']} unknowns, setup {setup:.1f} s, "
+          f"first assembly {assembly:.1f} s, peak {row['peak_mb']:.0f} MB")
+    print(f"  fields' scikit-fem bases     {mb(row['field_bases'])}")
+    for (k, v), after in zip(row["terms"].items(), row["terms_after_first_assembly"].values()):
+        print(f"  term {k:<24}{mb(v)}  (after the first assembly {mb(after).strip()})")
+    print(f"  constraint value terms       {mb(row['value_terms'])}  (share the constraint's arrays)")
+    print(f"  pattern + scatter maps       {mb(row['pattern'])}")
+    print(f"  assembly data (terms+pattern){mb(row['assembly_data'])}")
+    print(f"  quadratic terms' matrices    {mb(row['quadratic_matrices'])}")
+    print(f"  Newton matrix (free block)   {mb(row['newton_matrix'])}")
+    for k in ("cholmod_factor", "amg_hierarchy"):
+        if k in row:
+            print(f"  {k.replace('_', ' '):<29}{mb(row[k])}  ratio assembly data / it "
+                  f"{row['assembly_data'] / row[k]:.2f}")
+    os.makedirs(RESULTS, exist_ok=True)
+    path = os.path.join(RESULTS, "memory_3d.json")
+    rows = json.load(open(path))["rows"] if os.path.exists(path) else []
+    rows.append(dict(row, date=time.strftime("%Y-%m-%d %H:%M"), commit=os.popen(
+        f"git -C {HERE} rev-parse --short HEAD 2>/dev/null").read().strip()))
+    with open(path, "w") as fh:
+        json.dump(dict(rows=rows), fh, indent=1)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
