@@ -30,7 +30,7 @@ def test_closest_points_on_a_polyline_and_their_hysteresis():
 def ironing():
     case = get("ironing")
     p = case.parameters({"nx": "24", "nb": "4", "steps_down": "4"})
-    problem = case.problem(0, 1, p)
+    problem = case.problem(2, 1, p)
     problem.minimize()  # the rest state: compiles every kernel
     compiled = len(assembly._COMPILED)
     path = ni.path(problem, **case.module.path(problem, p), quiet=True)
@@ -87,7 +87,7 @@ def test_the_contact_jacobian_against_finite_differences(ironing):
 def test_current_pairing_needs_the_other_body_and_its_surface():
     case = get("ironing")
     p = case.parameters({"nx": "8", "nb": "2"})
-    spec = case.module.build(0, 1, p)
+    spec = case.module.build(2, 1, p)
     u1, u2 = spec["fields"][:2]
     with pytest.raises(ValueError, match="onto="):
         ni.interface(u1, "arc", other=u2, pairing="current")

@@ -52,30 +52,38 @@ PARAMETERS = {
     "steps_slide": (50, "load steps of the sliding (t = 1..2)"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h / E_block)"),
     "theta": (1, "the Nitsche variant: 1 symmetric, 0 skew, -1 non-symmetric (stable for every alpha0)"),
-    "nx": (120, "foundation cells along its length at level 0 (and nx/4 across its height)"),
-    "nb": (12, "block cells along its arc at level 0 (and nb/2 across its height)"),
+    "nx": (120, "foundation cells along its length at level 2, the default (and nx/4 across "
+                "its height); halved or doubled per level below or above"),
+    "nb": (12, "block cells along its arc at level 2 (and nb/2 across its height)"),
 }
 RANGES = {"theta": OneOf((1.0, 0.0, -1.0)), "end": Interval(0.0, 2.0, closed_hi=True), "E": POSITIVE, "stiffer": POSITIVE, "nu": POISSON, "F": Interval(0.0, closed_lo=True),
           "depth": Interval(0.0, 2.0, closed_hi=True), "slide": Interval(0.0, 10.5, closed_lo=True, closed_hi=True),
           "steps_down": Interval(1.0, closed_lo=True), "steps_slide": Interval(1.0, closed_lo=True),
           "nx": Interval(4.0, closed_lo=True), "nb": Interval(2.0, closed_lo=True)}
 DEGREES = (1, 2)
-PAPER = [dict(command="run", degree=1, level=0, fast=dict(sets={"steps_down": 10}))]
+PAPER = [dict(command="run", degree=1, level=2, fast=dict(sets={"steps_down": 10}))]
 CENTER, RADIUS = np.array([0.8, 4.95]), 0.75
 REFERENCE = os.path.join(os.path.dirname(__file__), "data", "ironing_reference.json")
 
 
+def cells_at(n, level):
+    """n cells at level 2 (the command line's default: the benchmark's mesh), doubled per level."""
+    return max(2, round(n * 2.0 ** (level - 2)))
+
+
 def foundation(nx, level):
-    """(0, 12) x (0, 4) in nx x nx/4 quadrilaterals (refined `level` times); 'bottom', 'top'."""
-    m = MeshQuad.init_tensor(np.linspace(0, 12, nx + 1), np.linspace(0, 4, nx // 4 + 1)).refined(level)
+    """(0, 12) x (0, 4) in nx x nx/4 quadrilaterals at level 2; 'bottom', 'top'."""
+    nx = cells_at(nx, level)
+    m = MeshQuad.init_tensor(np.linspace(0, 12, nx + 1), np.linspace(0, 4, max(1, round(nx / 4)) + 1))
     return m.with_boundaries({"bottom": lambda x: x[1] < 1e-9, "top": lambda x: x[1] > 4 - 1e-9})
 
 
 def block(nb, level):
     """The block: its arc (angles from -143.13 to -36.87 degrees about (0.8, 4.95)) blended
-    linearly into its top y = 5.4, nb x nb/2 quadrilaterals; boundaries 'arc', 'top' and
+    linearly into its top y = 5.4, nb x nb/2 quadrilaterals at level 2; boundaries 'arc', 'top' and
     'contact' (the arc and the leading side x = 1.4, as in the solids4foam tutorial)."""
-    m = MeshQuad.init_tensor(np.linspace(0, 1, nb + 1), np.linspace(0, 1, nb // 2 + 1)).refined(level)
+    nb = cells_at(nb, level)
+    m = MeshQuad.init_tensor(np.linspace(0, 1, nb + 1), np.linspace(0, 1, max(1, round(nb / 2)) + 1))
     s, r = m.p
     start, end = np.arctan2(-0.45, -0.6), np.arctan2(-0.45, 0.6)
     angle = start + s * (end - start)
