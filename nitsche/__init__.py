@@ -5,6 +5,7 @@ the multiplier lambda(u) and the scaling alpha = alpha0 h^k / stiffness; the
 library builds J_h, differentiates it with JAX and minimizes it with Newton.
 """
 import os
+import warnings
 
 # CHOLMOD's BLAS (Debian's OpenBLAS where installed) single-threaded unless the user says
 # otherwise: on 2 cores its threads made every triangular solve of the factor-reusing CG
@@ -19,6 +20,9 @@ if _cache != "off":
     jax.config.update("jax_compilation_cache_dir", _cache)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    # an entry another process was still writing reads as truncated; JAX then compiles the
+    # kernel itself, so the warning is noise (it would break the one-line error output)
+    warnings.filterwarnings("ignore", message="Error reading persistent compilation cache entry")
 
 from .fields import Field, history, coordinates  # noqa: E402
 from .measures import cells, facets, interface  # noqa: E402

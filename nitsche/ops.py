@@ -75,6 +75,12 @@ def plus(s):
     return jnp.where(s >= 0, s, 0.0)
 
 
+def lame(E, nu):
+    """The Lame constants (mu, lambda) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))
+    (3D and plane strain)."""
+    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
+
+
 def deformation_gradient(u):
     """F = I + grad u of a displacement field."""
     G = u.grad

@@ -9,14 +9,10 @@ from skfem import (MeshTri, MeshQuad, MeshTet, MeshHex, ElementTriP1, ElementTri
 
 import nitsche as ni
 from nitsche.locate import locate, reference_coordinates
-from nitsche.ops import dot, sym_grad
+from nitsche.ops import dot, lame, sym_grad
 from nitsche.supermesh import Supermesh
 
 PATCH_TOL = 1e-10  # relative error in pressure and displacement (round-off: about 1e-14)
-
-
-def lame(E, nu):
-    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
 def stress(u, E, nu, d):

@@ -22,7 +22,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector
 
 import nitsche as ni
 from nitsche.case import Interval, POISSON, POSITIVE
-from nitsche.ops import deformation_gradient, first_piola, neo_hookean
+from nitsche.ops import deformation_gradient, first_piola, lame, neo_hookean
 
 NAME = "compression"
 SUMMARY = "neo-Hookean half cylinder compressed onto a rigid plane in load steps (frictionless)"
@@ -52,10 +52,6 @@ def half_disk(R, n):
     p = R * np.array([x * np.sqrt(1 - y ** 2 / 2), y * np.sqrt(1 - x ** 2 / 2)])
     m = MeshTri(p, m.t)
     return m.with_boundaries({"top": lambda x: x[1] > -1e-9 * R, "arc": lambda x: x[1] < -1e-9 * R})
-
-
-def lame(E, nu):
-    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
 def build(level, degree, p):

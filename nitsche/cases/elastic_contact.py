@@ -31,7 +31,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector, CellBasis
 import nitsche as ni
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE, ParameterError
 from nitsche.meshes import graded
-from nitsche.ops import dot, sym_grad
+from nitsche.ops import dot, lame, sym_grad
 from nitsche.supermesh import interface_report
 
 NAME = "elastic-contact"
@@ -72,10 +72,6 @@ def check(p):
     if p.setup == "hertz" and not 0 < p.delta < p.L:
         raise ParameterError(f"parameter delta={p.delta!r} (hertz: downward displacement of "
                              f"body 2's top) must lie in (0, L = {p.L:g}); set --set delta=...")
-
-
-def lame(E, nu):
-    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
 def stress(u, E, nu):

@@ -32,7 +32,7 @@ from skfem import ElementTriP1, ElementTriP2, ElementVector, MeshTri
 import nitsche as ni
 from nitsche.case import Interval, POISSON, POSITIVE
 from nitsche.obstacles import contact, normal, sphere, translated
-from nitsche.ops import axisymmetric_deformation_gradient, neo_hookean
+from nitsche.ops import axisymmetric_deformation_gradient, lame, neo_hookean
 from nitsche.quantities import quantity
 
 NAME = "indentation"
@@ -55,10 +55,6 @@ RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "depth": Interval(0.0, 0.
 DEGREES = (2, 1)
 PAPER = [dict(command="run", degree=2, level=2, fast=dict(level=1))]
 HERTZ_DEPTH = 0.01  # depths d <= HERTZ_DEPTH R count as the small-depth end in reports
-
-
-def lame(E, nu):
-    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
 def graded_block(L, grading, h_min):

@@ -34,7 +34,7 @@ from skfem import ElementQuad1, ElementQuad2, ElementVector, MeshQuad
 
 import nitsche as ni
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE
-from nitsche.ops import deformation_gradient, dot, first_piola, neo_hookean, tangent
+from nitsche.ops import deformation_gradient, dot, first_piola, lame, neo_hookean, tangent
 from nitsche.plot import save_figure
 
 NAME = "ironing"
@@ -92,10 +92,6 @@ def block(nb, level):
     m = MeshQuad(bottom + r * (top - bottom), m.t)
     return m.with_boundaries({"arc": lambda x: x[1] < 4.5, "top": lambda x: x[1] > 5.4 - 1e-9,
                               "contact": lambda x: (x[1] < 4.5) | (x[0] > 1.4 - 1e-9)})
-
-
-def lame(E, nu):
-    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
 def current_normal(u, N):

@@ -24,7 +24,7 @@ from skfem import MeshHex, MeshQuad, ElementHex1, ElementQuad1, ElementVector, C
 
 import nitsche as ni
 from nitsche.case import Interval, NONNEGATIVE, POISSON, POSITIVE
-from nitsche.ops import dot, grad, lap, sym_grad
+from nitsche.ops import dot, grad, lame, lap, sym_grad
 from nitsche.supermesh import interface_report
 
 NAME = "membrane-solid"
@@ -46,10 +46,6 @@ RANGES = {"mu": POSITIVE, "d": NONNEGATIVE, "E": POSITIVE, "nu": POISSON, "alpha
           "n0": Interval(1, closed_lo=True), "m0": Interval(0, closed_lo=True)}
 DEGREES = (1,)
 RATE = {1: 1.0}
-
-
-def lame(E, nu):
-    return E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
 
 
 def lift(x):
