@@ -127,6 +127,14 @@ def neo_hookean(F, mu, lam):
     return 0.5 * mu * (2 * jnp.trace(H) + jnp.sum(H * H) - 2 * logJ) + 0.5 * lam * logJ ** 2
 
 
+def saint_venant_kirchhoff(F, mu, lam):
+    """The Saint Venant-Kirchhoff energy density W(F) = mu E : E + lam/2 (tr E)^2 with the
+    Green-Lagrange strain E = (F^T F - I) / 2 (linear elasticity's law on E; not
+    polyconvex: it softens and loses its convexity in strong compression)."""
+    E = 0.5 * (F.T @ F - jnp.eye(F.shape[0]))
+    return mu * jnp.sum(E * E) + 0.5 * lam * jnp.trace(E) ** 2
+
+
 def first_piola(W, F, *args):
     """P = dW/dF, the first Piola-Kirchhoff stress of an energy density W(F, *args)."""
     return jax.grad(W)(F, *args)
