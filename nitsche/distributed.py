@@ -29,7 +29,9 @@ from .linalg import (AMG_THRESHOLD_3D, IndefiniteHessian, NotSolved, lowest_eige
 from .problem import report_constraints
 
 SOLVERS = ("auto", "gamg", "direct")
-MPI_ENVIRONMENT = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK")  # Open MPI, MPICH, PMIx
+# set by Open MPI's and MPICH's launchers for their processes (not PMIX_RANK: a process whose
+# parent initialized MPI by itself, as a singleton, inherits that one)
+MPI_ENVIRONMENT = ("OMPI_COMM_WORLD_SIZE", "PMI_SIZE")
 
 
 def launched_by_mpirun():

@@ -277,11 +277,12 @@ class Problem:
                 self.fixed_values.copy(), {k: v.copy() for k, v in self.alpha0.items()})
 
     def set_state(self, state):
-        """Restore a state() (e.g. to evaluate a step of a path after it has been solved)."""
+        """Restore a state() (e.g. to evaluate a step of a path after it has been solved);
+        a state without its third entry (alpha0) leaves alpha0 as it is."""
         self.set_parameters(**state[0])
         self.fixed_values[:] = state[1]
         for i, (c, t) in enumerate(zip(self.constraints, self.constraint_terms)):
-            if c.name in state[2] and t.alpha0 is not None:
+            if len(state) > 2 and c.name in state[2] and t.alpha0 is not None:
                 self._set_alpha0(i, state[2][c.name].copy())
 
     def join(self, parts):
