@@ -63,11 +63,19 @@ def cells(mesh):
             import pymetis
             xadj, adjncy = dual_graph(mesh)
             part = np.zeros(mesh.t.shape[1], np.int64) if comm.size == 1 else \
-                np.asarray(pymetis.part_graph(comm.size, xadj=xadj, adjncy=adjncy)[1], np.int64)
+                np.asarray(metis_parts(pymetis, comm.size, xadj, adjncy), np.int64)
         part = comm.bcast(part, root=0)
         _CELLS[k] = np.flatnonzero(part == comm.rank)
         weakref.finalize(mesh, _CELLS.pop, k, None)
     return _CELLS[k]
+
+
+def metis_parts(pymetis, k, xadj, adjncy):
+    """The k-way METIS part of each vertex of the CSR graph (xadj, adjncy): through
+    pymetis.CSRAdjacency where pymetis has it (2025.2; passing xadj/adjncy is deprecated)."""
+    if hasattr(pymetis, "CSRAdjacency"):
+        return pymetis.part_graph(k, adjacency=pymetis.CSRAdjacency(xadj, adjncy))[1]
+    return pymetis.part_graph(k, xadj=xadj, adjncy=adjncy)[1]
 
 
 def owned(mesh, owners):
