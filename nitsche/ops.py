@@ -87,6 +87,17 @@ def deformation_gradient(u):
     return jnp.eye(G.shape[0]) + G
 
 
+def current_normal(F, N):
+    """n = cof(F) N / |cof(F) N|: the current unit normal of a surface whose reference normal
+    is N (Nanson's formula; cof F = det(F) F^-T, written out in 2D and 3D)."""
+    if F.shape == (2, 2):
+        m = jnp.array([F[1, 1] * N[0] - F[1, 0] * N[1], -F[0, 1] * N[0] + F[0, 0] * N[1]])
+    else:
+        a = F.T  # the columns of F: cof(F) has the columns a_1 x a_2 cyclically
+        m = N[0] * jnp.cross(a[1], a[2]) + N[1] * jnp.cross(a[2], a[0]) + N[2] * jnp.cross(a[0], a[1])
+    return m / jnp.linalg.norm(m)
+
+
 def axisymmetric_deformation_gradient(u, x):
     """F of an axisymmetric displacement (u_r, u_z) in (r, z) coordinates (x[0] = r > 0):
     the 3x3 matrix in the order (r, z, theta),

@@ -71,7 +71,7 @@ class Sliding(Interface):
 
     def pair(self, u1, u2):
         """Pair every point with the closest point of body 2's current surface (u1, u2: the
-        dof vectors of the two fields).  Returns True if some point changed its facet."""
+        dof vectors of the two fields)."""
         vertex_dofs = self.other.basis.nodal_dofs  # (2, vertices): the two components
         p = self.other.mesh.p
         current = p + u2[vertex_dofs]
@@ -80,12 +80,9 @@ class Sliding(Interface):
         self.segment = s
         A, B = p[:, self.segments[s, 0]], p[:, self.segments[s, 1]]
         X_m = (A + t * (B - A)).reshape(2, *self.shape)
-        cells = self.segment_cells[s].reshape(self.shape)
-        moved = not hasattr(self, "other_cells") or not np.array_equal(cells, self.other_cells)
-        self.X_m, self.other_cells = X_m, cells
+        self.X_m, self.other_cells = X_m, self.segment_cells[s].reshape(self.shape)
         self._other.clear()
         self.pairings += 1
-        return moved
 
     def other_points(self, field):
         return self.X_m

@@ -46,3 +46,16 @@ def test_saint_venant_kirchhoff_softens_in_compression():
     a = 1 / np.sqrt(3)
     assert P11(a) < P11(a - 0.05) and P11(a) < P11(a + 0.05)
     assert P11(1.1) > 0 > P11(0.9)
+
+
+@pytest.mark.parametrize("d", [2, 3])
+def test_current_normal_is_nansons(d):
+    """cof(F) N / |cof(F) N| = F^-T N / |F^-T N| for det F > 0, and N itself at F = I."""
+    from nitsche.ops import current_normal
+    rng = np.random.default_rng(7)
+    F = np.eye(d) + 0.3 * rng.standard_normal((d, d))
+    N = rng.standard_normal(d)
+    N /= np.linalg.norm(N)
+    m = np.linalg.solve(F.T, N) * np.sign(np.linalg.det(F))
+    assert np.allclose(current_normal(jnp.asarray(F), jnp.asarray(N)), m / np.linalg.norm(m), atol=1e-14)
+    assert np.allclose(current_normal(jnp.eye(d), jnp.asarray(N)), N, atol=1e-15)

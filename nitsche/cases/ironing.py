@@ -34,7 +34,8 @@ from skfem import ElementQuad1, ElementQuad2, ElementVector, MeshQuad
 
 import nitsche as ni
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE
-from nitsche.ops import deformation_gradient, dot, first_piola, lame, neo_hookean, tangent
+from nitsche.ops import (current_normal, deformation_gradient, dot, first_piola, lame, neo_hookean,
+                         tangent)
 from nitsche.plot import save_figure
 
 NAME = "ironing"
@@ -94,13 +95,6 @@ def block(nb, level):
                               "contact": lambda x: (x[1] < 4.5) | (x[0] > 1.4 - 1e-9)})
 
 
-def current_normal(u, N):
-    """n = cof(F) N / |cof(F) N|, the current outward normal of a facet with reference normal N."""
-    F = deformation_gradient(u)
-    m = jnp.array([F[1, 1] * N[0] - F[1, 0] * N[1], -F[0, 1] * N[0] + F[0, 0] * N[1]])
-    return m / jnp.linalg.norm(m)
-
-
 def build(level, degree, p):
     element = ElementVector(ElementQuad1() if degree == 1 else ElementQuad2())
     mesh1, mesh2 = block(int(p.nb), level), foundation(int(p.nx), level)
@@ -120,12 +114,13 @@ def build(level, degree, p):
         # the pairing is current, its derivative the linearization of the projection
         dxi = dot(d, tau) / dot(tau, tau)
         moved = (u2.value - u2_old.value) + (u2.grad[:, 0] - u2_old.grad[:, 0]) * dxi
-        s = tangent(current_normal(u1, n))
+        s = tangent(current_normal(deformation_gradient(u1), n))
         return jnp.stack([dot(d, nu), -dot(u1.value - u1_old.value - moved, s)])
 
     def multiplier(u1, n):
-        traction = dot(first_piola(neo_hookean, deformation_gradient(u1), *law1), n)
-        n_s = current_normal(u1, n)
+        F1 = deformation_gradient(u1)
+        traction = dot(first_piola(neo_hookean, F1, *law1), n)
+        n_s = current_normal(F1, n)
         return -jnp.stack([dot(n_s, traction), dot(tangent(n_s), traction)])
 
     arc = ni.interface(u1, "contact", other=u2, pairing="current", onto="top", intorder=2 * degree + 2)
