@@ -33,6 +33,7 @@ from .newton import Result, NotConverged, FeasibilityWarning  # noqa: E402
 from .jets import DerivativeError  # noqa: E402
 from .study import nested, prolongate  # noqa: E402
 from .path import path, Path  # noqa: E402
+from .sliding import facet_tangents  # noqa: E402
 from . import ops, obstacles  # noqa: E402
 
 
@@ -41,7 +42,7 @@ def minimize(energy, fields, constraints=(), x0=None, **options):
     return Problem(fields, energy, constraints).minimize(x0, **options)
 
 
-__all__ = ["Field", "history", "coordinates", "cells", "facets", "interface", "Scaling", "Integral", "Residual",
+__all__ = ["Field", "history", "coordinates", "facet_tangents", "cells", "facets", "interface", "Scaling", "Integral", "Residual",
            "Equality", "Inequality", "Penalty", "Tresca", "Coulomb", "Constraint", "Problem", "Result",
            "NotConverged", "StabilityWarning", "FeasibilityWarning",
            "DerivativeError", "ops", "obstacles", "minimize", "nested", "prolongate", "path", "Path"]

@@ -367,6 +367,9 @@ def facets(field, where=None, intorder=None, weight=None):
 
 def value_shapes(field, orders):
     """Shape of each requested derivative order of the field at one point."""
+    if getattr(field, "tangents_of", None) is not None:
+        raise ValueError(f"facet tangents '{field.name}' are read on an interface with "
+                         "pairing='current' onto their body only")
     value = _part(field.dof_basis.basis[0][0], 0).shape[:-2]
     return [value + (field.mesh.dim(),) * o for o in orders]
 

@@ -98,6 +98,21 @@ def current_normal(F, N):
     return m / jnp.linalg.norm(m)
 
 
+def surface_normal(T):
+    """The unit normal of a curve or surface with tangents T (the columns, shape (d, d - 1)):
+    (-t_y, t_x) / |t| in 2D, t_1 x t_2 / |t_1 x t_2| in 3D (outward for the current tangents
+    F_2 t of nitsche.facet_tangents)."""
+    m = jnp.array([-T[1, 0], T[0, 0]]) if T.shape[0] == 2 else jnp.cross(T[:, 0], T[:, 1])
+    return m / jnp.linalg.norm(m)
+
+
+def tangential_coordinates(T, d):
+    """xi = (T^T T)^-1 T^T d: the coordinates along the tangents T (columns) of the orthogonal
+    projection of d onto their span; with d = x_s - x_m, the first-order shift of the
+    closest point x_m along the surface (zero where x_m is the closest point)."""
+    return jnp.linalg.solve(T.T @ T, T.T @ d)
+
+
 def axisymmetric_deformation_gradient(u, x):
     """F of an axisymmetric displacement (u_r, u_z) in (r, z) coordinates (x[0] = r > 0):
     the 3x3 matrix in the order (r, z, theta),

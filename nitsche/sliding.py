@@ -2,7 +2,8 @@
 
 The contact surface of body 1 keeps its own quadrature points X_s.  At every Newton iterate
 each point's current position x_s = X_s + u_1(X_s) is projected onto the current surface of
-body 2, the facets `onto` with their vertices moved by u_2 (a polyline in 2D):
+body 2, the facets `onto` with their vertices moved by u_2 (a polyline in 2D; flat
+triangles or bilinear quadrilaterals in 3D, nitsche.projection):
 
     xi = argmin_{y on the current facets} |x_s - y|,
 
@@ -11,16 +12,22 @@ same position on the facet's reference vertices); a point keeps its facet while 
 projection lies near it (HYSTERESIS), so that it does not flip between two facets at a
 vertex from one iterate to the next.  A density reads body 2 there like any
 field on an interface: e.g. the normal gap (x_s - x_m) . nu with x_m = X_m + u_2(X_m)
-(X_m from nitsche.coordinates(u_2)) and nu the current normal of body 2.  The pairing is
+(X_m from nitsche.coordinates(u_2)) and nu the current normal of body 2 (from the paired
+facet's tangents, facet_tangents(u_2)).  The pairing is
 held fixed within a Newton step and its line search, and updated before the next one: the
 derivative of X_m in u is left out of the Newton matrix, so the convergence is fast but
 not quadratic while the pairing still moves, and quadratic once it has settled.
 """
 import numpy as np
 
+from skfem import ElementHex1, ElementTetP1
+
+from .fields import coordinates
 from .measures import Interface, facets, select_facets, tabulate_at
+from .projection import closest_facets, shape_functions
 
 
+FLAT_FACETED = (ElementTetP1, ElementHex1)  # 3D meshes with flat triangles or bilinear quadrilaterals
 HYSTERESIS = 0.25  # a point keeps its segment while its projection lies within this share beyond it
 
 
@@ -49,40 +56,89 @@ class Sliding(Interface):
 
     def __init__(self, base, mine, other, onto):
         super().__init__(base)
-        if other.mesh.dim() != 2:
-            raise ValueError("pairing='current' projects onto the other body's current surface in "
-                             "2D only (a polyline); for 3D use pairing='points' or 'supermesh'")
+        if other.mesh.dim() == 3 and other.mesh.elem not in FLAT_FACETED:
+            raise ValueError(f"pairing='current' projects onto flat triangles (MeshTet1) and bilinear "
+                             f"quadrilaterals (MeshHex1); the other body's {type(other.mesh).__name__} "
+                             "has other facets: give it a mesh of degree one (the field may be of "
+                             "degree two)")
         self.mine, self.other = mine, other
         facets_ = select_facets(other.mesh, onto)
-        self.segments = other.mesh.facets[:, facets_].T  # (S, 2) vertex indices
+        self.segments = other.mesh.facets[:, facets_].T  # (S, 2) vertex indices; in 3D (S, 3 or 4)
         self.segment_cells = other.mesh.f2t[0, facets_]
-        X = np.asarray(base.points, dtype=float)  # (2, E, Q)
+        self.orientation = outward(other.mesh, self.segments, self.segment_cells)
+        X = np.asarray(base.points, dtype=float)  # (dim, E, Q)
         self.shape = X.shape[1:]
-        self.X_s = X.reshape(2, -1).T
+        self.X_s = X.reshape(X.shape[0], -1).T
         cells = np.repeat(np.asarray(base.cells)[:, None], self.shape[1], axis=1)
         self._own = (tabulate_at(mine, [0], cells, X), mine.basis.element_dofs[:, cells])
         self.pairings = 0
         self.pair(np.zeros(mine.ndofs), np.zeros(other.ndofs))
 
     def current_points(self, u1):
-        """x_s = X_s + u_1(X_s), shape (P, 2)."""
-        T, dofs = self._own  # T (E, Q, 2, k), dofs (k, E, Q)
-        return self.X_s + np.einsum("eqck,keq->eqc", T, u1[dofs]).reshape(-1, 2)
+        """x_s = X_s + u_1(X_s), shape (P, dim)."""
+        T, dofs = self._own  # T (E, Q, dim, k), dofs (k, E, Q)
+        return self.X_s + np.einsum("eqck,keq->eqc", T, u1[dofs]).reshape(self.X_s.shape)
 
     def pair(self, u1, u2):
         """Pair every point with the closest point of body 2's current surface (u1, u2: the
         dof vectors of the two fields)."""
+        if self.other.mesh.dim() == 3:
+            return self.pair_surface(u1, u2)
         vertex_dofs = self.other.basis.nodal_dofs  # (2, vertices): the two components
         p = self.other.mesh.p
         current = p + u2[vertex_dofs]
         a, b = current[:, self.segments[:, 0]].T, current[:, self.segments[:, 1]].T
         s, t = closest_points(self.current_points(u1), a, b, getattr(self, "segment", None))
         self.segment = s
+        self.facet, self.eta = s, t[:, None]
         A, B = p[:, self.segments[s, 0]], p[:, self.segments[s, 1]]
         X_m = (A + t * (B - A)).reshape(2, *self.shape)
         self.X_m, self.other_cells = X_m, self.segment_cells[s].reshape(self.shape)
         self._other.clear()
         self.pairings += 1
+
+    def pair_surface(self, u1, u2):
+        """pair() in 3D: the closest points on triangles or bilinear quadrilaterals
+        (nitsche.projection), a point keeping its facet while its unclipped projection lies
+        within HYSTERESIS of it."""
+        p = self.other.mesh.p
+        current = (p + u2[self.other.basis.nodal_dofs]).T[self.segments]  # (S, vertices, 3)
+        self.facet, self.eta = closest_facets(self.current_points(u1), current,
+                                              getattr(self, "facet", None), HYSTERESIS)
+        N, _ = shape_functions(self.segments.shape[1], self.eta)
+        X_m = np.einsum("pi,pik->kp", N, p.T[self.segments[self.facet]])
+        self.X_m, self.other_cells = X_m.reshape(3, *self.shape), self.segment_cells[self.facet].reshape(self.shape)
+        self._other.clear()
+        self.pairings += 1
+
+    def tabulation(self, field, orders):
+        """Body 2's fields at the paired points; a field of facet_tangents: the reference
+        tangents of the paired facets, t_a = dX/deta_a = sum_i dN_i/deta_a(eta) X_i (X_i the
+        facet's vertices, the field's values there), the first one signed so that rot(t_1)
+        (2D) or t_1 x t_2 (3D) is body 2's outward normal."""
+        if getattr(field, "tangents_of", None) is None:
+            return super().tabulation(field, orders)
+        if field.mesh is not self.other.mesh:
+            raise ValueError(f"facet tangents '{field.name}' belong to another body than the one "
+                             "this interface is paired with (other=...)")
+        if list(orders) != [0]:
+            raise ValueError(f"facet tangents '{field.name}' are data: a density reads their value only")
+        vertices, (E, Q) = self.segments.shape[1], self.shape
+        dim, m = self.other.mesh.dim(), self.eta.shape[1]
+        _, dN = shape_functions(vertices, self.eta)  # (P, vertices, m)
+        dN[:, :, 0] *= self.orientation[self.facet][:, None]
+        T = np.einsum("pia,cd->pcaid", dN, np.eye(dim)).reshape(E, Q, dim * m, vertices * dim)
+        dofs = field.dof_basis.nodal_dofs[:, self.segments[self.facet]]  # (dim, P, vertices)
+        dofs = dofs.transpose(1, 2, 0).reshape(E, Q * vertices * dim)
+        slots = np.zeros((E, Q, dim * m, Q, vertices * dim))
+        slots[:, np.arange(Q), :, np.arange(Q)] = T.transpose(1, 0, 2, 3)
+        return slots.reshape(E, Q, dim * m, -1), np.ascontiguousarray(dofs)
+
+    def shapes(self, field, orders):
+        if getattr(field, "tangents_of", None) is None:
+            return super().shapes(field, orders)
+        dim = self.other.mesh.dim()
+        return [(dim, dim - 1) + (dim,) * o for o in orders]
 
     def other_points(self, field):
         return self.X_m
@@ -92,6 +148,29 @@ class Sliding(Interface):
         E, Q = self.shape
         slots = np.broadcast_to(np.arange(Q), (E, Q))
         return self.X_m, self.other_cells, slots, self.other_cells
+
+
+def outward(mesh, vertices, cells):
+    """+1 or -1 per facet (its vertices (S, v), owning cells (S,)): the sign of its first
+    reference tangent dX/deta_1 at the centre that makes rot(t_1) (2D) or t_1 x t_2 (3D)
+    point out of the cell."""
+    v = mesh.p.T[vertices]  # (S, v, dim)
+    _, dN = shape_functions(vertices.shape[1], np.full((len(v), mesh.dim() - 1), 1 / 3 if vertices.shape[1] == 3 else 0.5))
+    t = np.einsum("sia,sik->ska", dN, v)
+    n = np.stack([-t[:, 1, 0], t[:, 0, 0]], 1) if mesh.dim() == 2 else np.cross(t[:, :, 0], t[:, :, 1])
+    out = v.mean(axis=1) - mesh.p[:, mesh.t[:, cells]].mean(axis=1).T
+    return np.where((n * out).sum(1) >= 0, 1.0, -1.0)
+
+
+def facet_tangents(field, name=None):
+    """A field of data: on an interface with pairing='current' onto the body of `field`, the
+    reference tangents of the paired facet at X_m, value shape (dim, dim - 1) (columns t_a;
+    default name T_FIELD).  With F_2 = I + grad u_2 there, T = F_2 t are the current tangents,
+    ops.surface_normal(T) body 2's current outward normal and ops.tangential_coordinates(T,
+    x_s - x_m) the first-order shift dxi of the closest point (docs/finite_deformation.md)."""
+    t = coordinates(field, name or f"T_{field.name}")
+    t.tangents_of = field.name
+    return t
 
 
 def sliding(field, where, other, onto, intorder=None, weight=None):
