@@ -184,3 +184,79 @@ def test_the_contact_jacobian_against_central_differences(pressed_and_slid):
         v *= 1e-6 / np.abs(v).max()
         fd = (problem.gradient(x + v) - problem.gradient(x - v)) / 2
         assert np.linalg.norm((A @ v - fd)[free]) < 1e-6 * np.linalg.norm(fd[free])
+
+
+def tangents_at_the_pairing(on, T_field):
+    """The values (E, Q, dim, dim - 1) of a facet_tangents field as the interface tabulates it."""
+    T, dofs = on.tabulation(T_field, [0])
+    values = np.zeros(T_field.ndofs)
+    values[T_field.fixed_dofs] = T_field.fixed_values
+    dim = T_field.mesh.dim()
+    return np.einsum("eqck,ek->eqc", T, values[dofs]).reshape(*T.shape[:2], dim, dim - 1)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_facet_tangents_are_the_paired_facets_outward_tangents(dim):
+    """On an undeformed lower body (its top z = 0.5, or y = 0.5 in 2D): the tangents lie in
+    the top, rot(t) (2D) or t_1 x t_2 (3D) is the outward normal e_z times the facet's
+    measure (the reference facet has measure 1, or 1/2 for a triangle), and X_m is below
+    the point."""
+    from skfem import ElementQuad1, MeshQuad
+    if dim == 2:
+        m2 = MeshQuad.init_tensor(np.linspace(0, 2, 6), np.linspace(0, 0.5, 2))
+        m1 = MeshQuad.init_tensor(np.linspace(0.6, 1.4, 4), np.linspace(0.52, 0.92, 2))
+        boundaries = {"bottom": lambda p: p[1] < 0.52 + 1e-9, "top": lambda p: p[1] > 0.5 - 1e-9}
+        m1, m2 = m1.with_boundaries(boundaries), m2.with_boundaries(boundaries)
+        e1 = e2 = ElementVector(ElementQuad1())
+    else:
+        m2 = box(np.linspace(0, 2, 6), np.linspace(0, 2, 6), np.linspace(0, 0.5, 2), tets=True)
+        m1 = box(np.linspace(0.6, 1.4, 4), np.linspace(0.6, 1.4, 4), np.linspace(0.52, 0.92, 2))
+        e1, e2 = ElementVector(ElementHex1()), ElementVector(ElementTetP1())
+    u1, u2 = ni.Field("u1", m1, e1), ni.Field("u2", m2, e2)
+    on = ni.interface(u1, "bottom", other=u2, pairing="current", onto="top")
+    t = tangents_at_the_pairing(on, ni.facet_tangents(u2))
+    assert np.allclose(t[..., dim - 1, :], 0.0)
+    if dim == 2:
+        normal = np.stack([-t[..., 1, 0], t[..., 0, 0]], -1)
+        size = 0.4  # the segments' length
+    else:
+        normal = np.cross(t[..., 0], t[..., 1])
+        size = 0.4 * 0.4  # twice the triangles' area
+    assert np.allclose(normal[..., :dim - 1], 0.0) and np.allclose(normal[..., dim - 1], size)
+    X_s = np.moveaxis(np.asarray(on.points), 0, -1)
+    X_m = np.moveaxis(on.X_m, 0, -1)
+    assert np.allclose(X_m[..., :dim - 1], X_s[..., :dim - 1]) and np.allclose(X_m[..., dim - 1], 0.5)
+
+
+def test_the_current_normal_of_the_paired_facets(pressed_and_slid):
+    """At the slid solution: ops.surface_normal(F_2 t) at the paired points is the unit normal
+    of the current (flat) facet through its moved vertices, pointing up."""
+    problem, path, _ = pressed_and_slid
+    from nitsche.quantities import quantity
+    x = path.at(problem, len(path.steps) - 1)
+    problem.update_pairing(x)
+    on = problem.constraints[0].on
+    on.attach(problem.by_name["u1"])  # the quadrature (the problem released its bases)
+    u2 = problem.by_name["u2"]
+    current = (u2.mesh.p + problem.split(x)["u2"][u2.basis.nodal_dofs]).T[on.segments[on.facet]]
+    expected = np.cross(current[:, 1] - current[:, 0], current[:, 2] - current[:, 0])
+    expected *= np.sign(expected[:, 2:]) / np.linalg.norm(expected, axis=1, keepdims=True)
+    for k in range(3):
+        nu, _, _ = quantity(problem, x, lambda u2, T_u2: surface_normal(deformation_gradient(u2) @ T_u2.value)[k],
+                            on=on)
+        assert np.allclose(nu.ravel(), expected[:, k], atol=1e-12)
+    assert np.ptp(expected[:, 2]) > 1e-4  # the facets are tilted differently
+
+
+def test_unsupported_facets_and_tangents_elsewhere_say_what_to_do():
+    m2 = MeshHex2.from_mesh(MeshHex.init_tensor(*[np.linspace(0, 1, 3)] * 3))  # curved faces
+    m2 = m2.with_boundaries({"top": lambda p: p[2] > 1 - 1e-9})
+    m1 = box(np.linspace(0.2, 0.8, 3), np.linspace(0.2, 0.8, 3), np.linspace(1.1, 1.5, 2))
+    u1 = ni.Field("u1", m1, ElementVector(ElementHex1()))
+    u2 = ni.Field("u2", m2, ElementVector(ElementHex2()))
+    with pytest.raises(ValueError, match="mesh of degree one"):
+        ni.interface(u1, "bottom", other=u2, pairing="current", onto="top")
+    T1 = ni.facet_tangents(u1)
+    with pytest.raises(ValueError, match="pairing='current'"):
+        ni.Problem([u1, T1], [ni.Integral(lambda u1, T_u1: T_u1.value[0, 0] * u1.value[0],
+                                          ni.facets(u1, "bottom"))])
