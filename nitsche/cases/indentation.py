@@ -1,4 +1,5 @@
-"""A rigid sphere indents a compressible neo-Hookean block deeply: a load path, axisymmetric.
+"""A rigid sphere indents a compressible neo-Hookean block deeply: a load path, axisymmetric
+or in 3D.
 
 The block is the cylinder 0 < r < L, -L < z < 0 (L = size R) in (r, z) coordinates; every
 measure carries the weight 2 pi r, so the 2D model is the 3D body.  Its energy is
@@ -23,20 +24,25 @@ shipped mesh: a quarter of the distance).  Force balance: the bottom's vertical
 reaction equals the contact force, the vertical resultant int lambda_N (-n_phi . e_z) (a
 vertical translation changes g by n_phi . e_z and the energy by nothing; the axis and the
 free side carry no vertical force), up to int alpha (lambda_N - lambda) Dlambda[e_z].
+
+geometry=3d: the same block and sphere in (x, y, z), a quarter of it, 0 < x, y < L, in
+tetrahedra graded by the same rule (red-green refinement), u_x = 0 on x = 0 and u_y = 0 on
+y = 0, the bottom clamped, F = I + grad u; the forces reported are the whole block's (4 times
+the quarter's).
 """
 import os
 
 import numpy as np
-from skfem import ElementTriP1, ElementTriP2, ElementVector, MeshTri
+from skfem import ElementTetP1, ElementTetP2, ElementTriP1, ElementTriP2, ElementVector, MeshTet, MeshTri
 
 import nitsche as ni
-from nitsche.case import Interval, POISSON, POSITIVE
+from nitsche.case import Interval, OneOf, POISSON, POSITIVE
 from nitsche.obstacles import contact, normal, sphere, translated
-from nitsche.ops import axisymmetric_deformation_gradient, lame, neo_hookean
+from nitsche.ops import axisymmetric_deformation_gradient, deformation_gradient, lame, neo_hookean
 from nitsche.quantities import quantity
 
 NAME = "indentation"
-SUMMARY = "rigid sphere pressed deep into a neo-Hookean block in load steps, axisymmetric, vs Hertz"
+SUMMARY = "rigid sphere pressed deep into a neo-Hookean block in load steps, axisymmetric or 3D, vs Hertz"
 PARAMETERS = {
     "E": (1.0, "Young's modulus"),
     "nu": (0.3, "Poisson's ratio"),
@@ -48,10 +54,13 @@ PARAMETERS = {
                 "(halved by each level)"),
     "alpha0": ("0.2*limit", "Nitsche parameter (alpha = alpha0 h / E, h = cell diameter); "
                "the limits are those of the reference state"),
+    "geometry": ("axisymmetric", "axisymmetric: the (r, z) model; 3d: a quarter of the block in "
+                 "tetrahedra with symmetry conditions (run it at --level 1: each level has about 8 "
+                 "times the cells)"),
 }
 RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "depth": Interval(0.0, 0.9),
           "steps": Interval(1.0, closed_lo=True), "size": Interval(2.0),
-          "grading": Interval(0.0, 2.0, closed_hi=True)}
+          "grading": Interval(0.0, 2.0, closed_hi=True), "geometry": OneOf(("axisymmetric", "3d"))}
 DEGREES = (2, 1)
 PAPER = [dict(command="run", degree=2, level=2, fast=dict(level=1))]
 HERTZ_DEPTH = 0.01  # depths d <= HERTZ_DEPTH R count as the small-depth end in reports
@@ -76,6 +85,26 @@ def graded_block(L, grading, h_min):
                                  "top": lambda x: x[1] > -tol, "side": lambda x: x[0] > L - tol})
 
 
+def graded_quarter(L, grading, h_min):
+    """(0, L)^2 x (-L, 0) in tetrahedra refined (red-green) until every cell's diameter is at
+    most max(grading rho, h_min), rho the distance of its centroid from the origin;
+    boundaries 'x0' (x = 0), 'y0' (y = 0), 'bottom', 'top' and 'side' (x = L or y = L)."""
+    mesh = MeshTet.init_tensor(np.linspace(0, L, 3), np.linspace(0, L, 3), np.linspace(-L, 0, 3))
+    while True:
+        p = mesh.p[:, mesh.t]
+        rho = np.linalg.norm(p.mean(axis=1), axis=0)
+        diameter = np.max([np.linalg.norm(p[:, i] - p[:, j], axis=0)
+                           for i in range(4) for j in range(i + 1, 4)], axis=0)
+        coarse = np.flatnonzero(diameter > np.maximum(grading * rho, h_min))
+        if coarse.size == 0:
+            break
+        mesh = mesh.refined(coarse)
+    tol = 1e-9 * L
+    return mesh.with_boundaries({"x0": lambda x: x[0] < tol, "y0": lambda x: x[1] < tol,
+                                 "bottom": lambda x: x[2] < -L + tol, "top": lambda x: x[2] > -tol,
+                                 "side": lambda x: (x[0] > L - tol) | (x[1] > L - tol)})
+
+
 def first_depth(p):
     return p.depth * p.R / int(p.steps) ** 2
 
@@ -84,26 +113,49 @@ def ring(x):
     return 2 * np.pi * x[0]
 
 
+def solid(p):
+    """True for geometry=3d."""
+    return p.geometry == "3d"
+
+
+def symmetry(p):
+    """The whole block's forces over those of the model: 4 for the quarter, 1 axisymmetric
+    (whose measures carry 2 pi r)."""
+    return 4.0 if solid(p) else 1.0
+
+
 def obstacle(p):
-    """The sphere moved down by d: phi(y, d) = |y - (0, R - d)| - R."""
-    return translated(sphere((0.0, p.R), p.R), (0.0, -1.0))
+    """The sphere moved down by d: phi(y, d) = |y - (0, R - d)| - R (y = (r, z)), or
+    |y - (0, 0, R - d)| - R in 3D."""
+    dim = 3 if solid(p) else 2
+    return translated(sphere(np.eye(dim)[-1] * p.R, p.R), -np.eye(dim)[-1])
 
 
 def build(level, degree, p):
     h_min = 0.5 * p.grading * np.sqrt(p.R * first_depth(p))
-    mesh = graded_block(p.size * p.R, p.grading, h_min).refined(level)
-    u = ni.Field("u", mesh, ElementVector(ElementTriP1() if degree == 1 else ElementTriP2()),
-                 fixed={"axis": "x", "bottom": "all"})
+    if solid(p):  # graded by the rule of level `level` directly (uniform 3D refinements are 8x)
+        scale = 0.5 ** level
+        mesh = graded_quarter(p.size * p.R, p.grading * scale, h_min * scale)
+        element = ElementTetP1() if degree == 1 else ElementTetP2()
+        fixed, weight = {"x0": "x", "y0": "y", "bottom": "all"}, None
+    else:
+        mesh = graded_block(p.size * p.R, p.grading, h_min).refined(level)
+        element = ElementTriP1() if degree == 1 else ElementTriP2()
+        fixed, weight = {"axis": "x", "bottom": "all"}, ring
+    u = ni.Field("u", mesh, ElementVector(element), fixed=fixed)
     mu, lam = lame(p.E, p.nu)
 
     def W(F):
         return neo_hookean(F, mu, lam)
 
-    energy = ni.Integral(lambda u, x: W(axisymmetric_deformation_gradient(u, x)),
-                         ni.cells(u, intorder=2 * degree, weight=ring))
-    gap, pressure = contact(obstacle(p), W, parameters=("d",), axisymmetric=True)
+    if solid(p):
+        energy = ni.Integral(lambda u: W(deformation_gradient(u)), ni.cells(u, intorder=2 * degree))
+    else:
+        energy = ni.Integral(lambda u, x: W(axisymmetric_deformation_gradient(u, x)),
+                             ni.cells(u, intorder=2 * degree, weight=ring))
+    gap, pressure = contact(obstacle(p), W, parameters=("d",), axisymmetric=not solid(p))
     sphere_contact = ni.Inequality(gap, pressure, ni.Scaling(p.alpha0, h_power=1, stiffness=p.E),
-                                   ni.facets(u, "top", intorder=2 * degree + 2, weight=ring),
+                                   ni.facets(u, "top", intorder=2 * degree + 2, weight=weight),
                                    name="sphere")
     return dict(fields=[u], energy=energy, constraints=[sphere_contact], parameters={"d": 0.0})
 
@@ -124,15 +176,17 @@ def force_depth(problem, p):
     """Per accepted step: the depth d, the contact force (its vertical resultant
     int lambda_N (-n_phi . e_z), pushing the block down), the bottom's reaction (pushing
     it up), Hertz's force and the contact force's relative difference to it."""
-    ball, on = obstacle(p), problem.constraints[0].on
+    ball, on, whole = obstacle(p), problem.constraints[0].on, symmetry(p)
+    z = "z" if solid(p) else "y"  # the vertical: the last coordinate
     rows = []
     for k, s in enumerate(problem.path.steps[:len(problem.path.results)]):
         x = problem.path.at(problem, k)
         d = problem.state()[0]["d"]
-        n_z = quantity(problem, x, lambda u, x, d: normal(ball, x + u.value, d)[1], on=on)[0]
+        n_z = quantity(problem, x, lambda u, x, d: normal(ball, x + u.value, d)[-1], on=on)[0]
         v = problem.constraint_values(x)["sphere"]
-        force = float(-(v["W"] * v["multiplier"] * n_z).sum())
-        rows.append(dict(depth=d, force=force, reaction=s["reactions"]["u"]["bottom"]["reaction_y"],
+        force = whole * float(-(v["W"] * v["multiplier"] * n_z).sum())
+        reaction = whole * s["reactions"]["u"]["bottom"][f"reaction_{z}"]
+        rows.append(dict(depth=d, force=force, reaction=reaction,
                          hertz=float(hertz(p, d)), hertz_difference=float(force / hertz(p, d) - 1),
                          iterations=s["iterations"]))
     return rows
