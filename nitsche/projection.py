@@ -154,25 +154,30 @@ def closest_facets(x, v, previous=None, margin=0.0, candidates=CANDIDATES):
     that reach is examined.  previous: the points' facets so far, kept while the unclipped
     closest point on them lies within `margin` of the facet (hysteresis)."""
     F, nv = v.shape[:2]
+    facet, eta = np.zeros(len(x), int), np.zeros((len(x), v.shape[2] - 1))
+    search = np.arange(len(x))
+    if previous is not None:
+        kept, free_eta = on_facets(x, v[previous])
+        keep = within(free_eta, nv, margin)
+        facet[keep], eta[keep], search = previous[keep], kept[keep], np.flatnonzero(~keep)
+    if search.size == 0:
+        return facet, eta
+    y = x[search]
     centroids = v.mean(axis=1)
     reach = np.sqrt(((v - centroids[:, None]) ** 2).sum(-1)).max()
     tree = cKDTree(centroids)
     k = min(candidates, F)
-    dist, near = tree.query(x, k)
-    dist, near = dist.reshape(len(x), k), near.reshape(len(x), k)
-    P = np.repeat(np.arange(len(x)), k)
-    facet, eta = _best(x, v, P, near.ravel(), len(x))
-    found = np.sqrt(((x - _point(v, facet, eta)) ** 2).sum(-1))
+    dist, near = tree.query(y, k)
+    dist, near = dist.reshape(len(y), k), near.reshape(len(y), k)
+    f, e = _best(y, v, np.repeat(np.arange(len(y)), k), near.ravel(), len(y))
+    found = np.sqrt(((y - _point(v, f, e)) ** 2).sum(-1))
     unsure = np.flatnonzero(dist[:, -1] <= found + reach) if k < F else np.zeros(0, int)
     if unsure.size:
-        balls = tree.query_ball_point(x[unsure], found[unsure] + reach)
-        P = np.repeat(unsure, [len(b) for b in balls])
-        f, e = _best(x, v, P, np.concatenate([np.asarray(b, int) for b in balls]), len(x))
-        facet[unsure], eta[unsure] = f[unsure], e[unsure]
-    if previous is not None:
-        kept, free_eta = on_facets(x, v[previous])
-        keep = within(free_eta, nv, margin)
-        facet, eta = np.where(keep, previous, facet), np.where(keep[:, None], kept, eta)
+        balls = tree.query_ball_point(y[unsure], found[unsure] + reach)
+        points = np.repeat(unsure, [len(b) for b in balls])
+        f2, e2 = _best(y, v, points, np.concatenate([np.asarray(b, int) for b in balls]), len(y))
+        f[unsure], e[unsure] = f2[unsure], e2[unsure]
+    facet[search], eta[search] = f, e
     return facet, eta
 
 
