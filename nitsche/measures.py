@@ -504,7 +504,8 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     Without `other` the pairing is 'points'.  reach: see nitsche.supermesh.Supermesh.
     'current': each point is paired with the closest point of the other body's current
     boundary `onto` (a boundary name) at every Newton iterate, for large sliding
-    (nitsche.sliding; 2D).  weight w(x) as for cells."""
+    (nitsche.sliding: a polyline in 2D; flat triangles or bilinear quadrilaterals in 3D).
+    weight w(x) as for cells."""
     if pairing not in ("auto", "supermesh", "points", "current"):
         raise ValueError(f"pairing must be 'auto', 'supermesh', 'points' or 'current', not {pairing!r}")
     if pairing == "current":

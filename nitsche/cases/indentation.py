@@ -30,6 +30,7 @@ tetrahedra graded by the same rule (red-green refinement), u_x = 0 on x = 0 and 
 y = 0, the bottom clamped, F = I + grad u; the forces reported are the whole block's (4 times
 the quarter's).
 """
+import json
 import os
 
 import numpy as np
@@ -64,6 +65,7 @@ RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "depth": Interval(0.0, 0.
 DEGREES = (2, 1)
 PAPER = [dict(command="run", degree=2, level=2, fast=dict(level=1))]
 HERTZ_DEPTH = 0.01  # depths d <= HERTZ_DEPTH R count as the small-depth end in reports
+AXISYMMETRIC = os.path.join(os.path.dirname(__file__), "data", "indentation_axisymmetric.json")
 
 
 def graded_block(L, grading, h_min):
@@ -192,14 +194,35 @@ def force_depth(problem, p):
     return rows
 
 
+def axisymmetric(p, d):
+    """The axisymmetric model's contact force at depths d (an array), from its shipped run
+    (AXISYMMETRIC: `nitsche run indentation`, level 2, P2), F / (E R^2) interpolated as
+    (d / R)^(3/2) times a piecewise linear function of d / R; None unless nu, size and the
+    depths are those of that run (d at most its last depth)."""
+    with open(AXISYMMETRIC) as f:
+        ref = json.load(f)
+    depth, force = np.array(ref["depth_over_R"]), np.array(ref["force_over_E_R2"])
+    x = np.asarray(d, dtype=float) / p.R
+    if p.nu != ref["nu"] or p.size != ref["size"] or x.max(initial=0.0) > depth[-1] * (1 + 1e-9):
+        return None
+    return p.E * p.R ** 2 * x ** 1.5 * np.interp(x, depth, force / depth ** 1.5)
+
+
 def report(problem, result, p):
     """force_depth (per step), depth_reached (over R), the contact force at the last step
-    and the largest difference to Hertz at depths up to HERTZ_DEPTH R."""
+    and the largest difference to Hertz at depths up to HERTZ_DEPTH R; in 3D also
+    axisymmetric_difference, the largest relative difference of the contact force to the
+    axisymmetric model's (where its shipped run applies, else None)."""
     rows = force_depth(problem, p)
     small = [abs(r["hertz_difference"]) for r in rows if r["depth"] <= HERTZ_DEPTH * p.R * (1 + 1e-9)]
-    return dict(force_depth=rows, depth_reached=rows[-1]["depth"] / p.R if rows else 0.0,
-                force=rows[-1]["force"] if rows else None,
-                hertz_difference_small_depth=max(small) if small else None)
+    out = dict(force_depth=rows, depth_reached=rows[-1]["depth"] / p.R if rows else 0.0,
+               force=rows[-1]["force"] if rows else None,
+               hertz_difference_small_depth=max(small) if small else None)
+    if solid(p):
+        F = axisymmetric(p, [r["depth"] for r in rows]) if rows else None
+        out["axisymmetric_difference"] = None if F is None else \
+            float(max(abs(r["force"] / f - 1) for r, f in zip(rows, F)))
+    return out
 
 
 def figures(problem, result, p, folder):
@@ -214,14 +237,19 @@ def figures(problem, result, p, folder):
     ax.plot(d, [r["reaction"] for r in rows], "x", ms=6, label="bottom reaction")
     fine = np.linspace(0, d[-1], 200) * p.R
     ax.plot(fine / p.R, hertz(p, fine), "k--", lw=1, label="Hertz $4/3\\, E^* R^{1/2} d^{3/2}$")
+    reference = axisymmetric(p, fine[1:]) if solid(p) else None
+    if reference is not None:
+        ax.plot(fine[1:] / p.R, reference, "C2:", lw=1.5, label="axisymmetric model (level 2)")
+        rel.semilogx(fine[1:] / p.R, reference / hertz(p, fine[1:]), "C2:", lw=1.5)
     ax.set_xlabel("depth d / R")
     ax.set_ylabel("force")
     ax.legend()
-    rel.semilogx(d, [r["force"] / r["hertz"] for r in rows], "o-", ms=4)
+    rel.semilogx(d, [r["force"] / r["hertz"] for r in rows], "o-", ms=4, color="C0")
     rel.axhline(1.0, color="k", ls="--", lw=1)
     rel.set_xlabel("depth d / R")
     rel.set_ylabel("contact force / Hertz")
     for a in (ax, rel):
         a.grid(alpha=0.3, which="both")
     path = os.path.join(folder, "force_depth.png")
-    return [save_figure(fig, path, f"indentation: neo-Hookean block (nu = {p.nu:g}), rigid sphere")]
+    model = "3D quarter" if solid(p) else "axisymmetric"
+    return [save_figure(fig, path, f"indentation: neo-Hookean block (nu = {p.nu:g}, {model}), rigid sphere")]
