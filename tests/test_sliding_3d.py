@@ -195,13 +195,14 @@ def tangents_at_the_pairing(on, T_field):
     return np.einsum("eqck,ek->eqc", T, values[dofs]).reshape(*T.shape[:2], dim, dim - 1)
 
 
-@pytest.mark.parametrize("dim", [2, 3])
-def test_facet_tangents_are_the_paired_facets_outward_tangents(dim):
+@pytest.mark.parametrize("lower", ["quadrilaterals 2D", "tetrahedra", "hexahedra"])
+def test_facet_tangents_are_the_paired_facets_outward_tangents(lower):
     """On an undeformed lower body (its top z = 0.5, or y = 0.5 in 2D): the tangents lie in
     the top, rot(t) (2D) or t_1 x t_2 (3D) is the outward normal e_z times the facet's
-    measure (the reference facet has measure 1, or 1/2 for a triangle), and X_m is below
-    the point."""
+    measure (the reference facet has measure 1, or 1/2 for a triangle; for the squares of
+    the hexahedra this holds only with their vertices in turn), and X_m is below the point."""
     from skfem import ElementQuad1, MeshQuad
+    dim = 2 if lower.endswith("2D") else 3
     if dim == 2:
         m2 = MeshQuad.init_tensor(np.linspace(0, 2, 6), np.linspace(0, 0.5, 2))
         m1 = MeshQuad.init_tensor(np.linspace(0.6, 1.4, 4), np.linspace(0.52, 0.92, 2))
@@ -209,9 +210,10 @@ def test_facet_tangents_are_the_paired_facets_outward_tangents(dim):
         m1, m2 = m1.with_boundaries(boundaries), m2.with_boundaries(boundaries)
         e1 = e2 = ElementVector(ElementQuad1())
     else:
-        m2 = box(np.linspace(0, 2, 6), np.linspace(0, 2, 6), np.linspace(0, 0.5, 2), tets=True)
+        tets = lower == "tetrahedra"
+        m2 = box(np.linspace(0, 2, 6), np.linspace(0, 2, 6), np.linspace(0, 0.5, 2), tets=tets)
         m1 = box(np.linspace(0.6, 1.4, 4), np.linspace(0.6, 1.4, 4), np.linspace(0.52, 0.92, 2))
-        e1, e2 = ElementVector(ElementHex1()), ElementVector(ElementTetP1())
+        e1, e2 = ElementVector(ElementHex1()), ElementVector(ElementTetP1() if tets else ElementHex1())
     u1, u2 = ni.Field("u1", m1, e1), ni.Field("u2", m2, e2)
     on = ni.interface(u1, "bottom", other=u2, pairing="current", onto="top")
     t = tangents_at_the_pairing(on, ni.facet_tangents(u2))
@@ -221,7 +223,7 @@ def test_facet_tangents_are_the_paired_facets_outward_tangents(dim):
         size = 0.4  # the segments' length
     else:
         normal = np.cross(t[..., 0], t[..., 1])
-        size = 0.4 * 0.4  # twice the triangles' area
+        size = 0.4 * 0.4  # the squares' area, twice the triangles'
     assert np.allclose(normal[..., :dim - 1], 0.0) and np.allclose(normal[..., dim - 1], size)
     X_s = np.moveaxis(np.asarray(on.points), 0, -1)
     X_m = np.moveaxis(on.X_m, 0, -1)
