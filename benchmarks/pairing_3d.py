@@ -77,7 +77,7 @@ def main():
                 seconds, dofs = one_solve(m, tets)
                 solve.append(seconds)
             row = dict(n=n, facets="triangles" if tets else "quadrilaterals", facet_count=len(v),
-                       points=len(x), dofs=dofs, pairing=statistics.median(first),
+                       points=len(x), dofs=int(dofs), pairing=statistics.median(first),
                        re_pairing=statistics.median(again), solve=statistics.median(solve))
             row["pairing_over_solve"] = row["pairing"] / row["solve"]
             row["re_pairing_over_solve"] = row["re_pairing"] / row["solve"]

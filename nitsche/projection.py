@@ -20,7 +20,7 @@ projects (the hysteresis of nitsche.sliding).
 import numpy as np
 from scipy.spatial import cKDTree
 
-NEWTON_STEPS = 30  # at most, for the bilinear quadrilaterals (converged to 1e-13 in eta)
+NEWTON_STEPS = 30  # at most, for the bilinear quadrilaterals (until eta moves by < 1e-13)
 CANDIDATES = 8  # facets nearest by centroid examined first per point
 
 
@@ -101,21 +101,23 @@ def on_quadrilaterals(x, v):
     of |x - y(r, s)|^2 / 2 nearest the centre (Newton's method, its iterates kept in [-1, 2]^2)."""
     eta = np.full((len(x), 2), 0.5)
     twist = v[:, 0] - v[:, 1] + v[:, 2] - v[:, 3]  # d^2 y / dr ds
+    active = np.arange(len(x))  # the pairs still moving
     for _ in range(NEWTON_STEPS):
-        _, dN = shape_functions(4, eta)
-        T = np.einsum("pia,pik->pka", dN, v)  # the tangents dy/dr, dy/ds (P, 3, 2)
-        e = bilinear(v, eta) - x
-        g = np.einsum("pka,pk->pa", T, e)
-        H = np.einsum("pka,pkb->pab", T, T)
-        c = (e * twist).sum(-1)
-        H[:, 0, 1] += c
-        H[:, 1, 0] += c
-        det = H[:, 0, 0] * H[:, 1, 1] - H[:, 0, 1] ** 2
-        H = np.where(((det > 0) & (H[:, 0, 0] > 0))[:, None, None], H,
-                     np.einsum("pka,pkb->pab", T, T))  # Gauss-Newton where not convex
-        step = np.linalg.solve(H, g[..., None])[..., 0]
-        eta = np.clip(eta - step, -1.0, 2.0)
-        if np.abs(step).max(initial=0.0) < 1e-13:
+        va, e_ = v[active], eta[active]
+        N, dN = shape_functions(4, e_)
+        tr, ts = (dN[:, :, 0, None] * va).sum(1), (dN[:, :, 1, None] * va).sum(1)  # dy/dr, dy/ds
+        e = (N[..., None] * va).sum(1) - x[active]
+        gr, gs = (tr * e).sum(1), (ts * e).sum(1)
+        a, b, c = (tr * tr).sum(1), (tr * ts).sum(1), (ts * ts).sum(1)
+        newton = b + (e * twist[active]).sum(1)  # the Hessian [[a, b'], [b', c]], b' = b + e . y_rs
+        convex = (a * c - newton ** 2 > 0) & (a > 0)
+        b = np.where(convex, newton, b)  # Gauss-Newton where not convex
+        det = a * c - b * b
+        det = np.where(det > 0, det, np.inf)  # a degenerate facet: no step (its edges decide)
+        step = np.stack([c * gr - b * gs, a * gs - b * gr], 1) / det[:, None]
+        eta[active] = np.clip(e_ - step, -1.0, 2.0)
+        active = active[np.abs(eta[active] - e_).max(axis=1) >= 1e-13]  # held at the bound: done
+        if active.size == 0:
             break
     inside = np.all((eta >= 0) & (eta <= 1), axis=1)
     corners = [(0, 1, (0, 0), (1, 0)), (1, 2, (1, 0), (1, 1)), (3, 2, (0, 1), (1, 1)), (0, 3, (0, 0), (0, 1))]

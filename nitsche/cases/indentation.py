@@ -197,22 +197,23 @@ def force_depth(problem, p):
 def axisymmetric(p, d):
     """The axisymmetric model's contact force at depths d (an array), from its shipped run
     (AXISYMMETRIC: `nitsche run indentation`, level 2, P2), F / (E R^2) interpolated as
-    (d / R)^(3/2) times a piecewise linear function of d / R; None unless nu, size and the
-    depths are those of that run (d at most its last depth)."""
+    (d / R)^(3/2) times a piecewise linear function of d / R, NaN outside its depths; None
+    unless nu and size are those of that run."""
     with open(AXISYMMETRIC) as f:
         ref = json.load(f)
     depth, force = np.array(ref["depth_over_R"]), np.array(ref["force_over_E_R2"])
     x = np.asarray(d, dtype=float) / p.R
-    if p.nu != ref["nu"] or p.size != ref["size"] or x.max(initial=0.0) > depth[-1] * (1 + 1e-9):
+    if p.nu != ref["nu"] or p.size != ref["size"]:
         return None
-    return p.E * p.R ** 2 * x ** 1.5 * np.interp(x, depth, force / depth ** 1.5)
+    inside = (x >= depth[0] * (1 - 1e-9)) & (x <= depth[-1] * (1 + 1e-9))
+    return np.where(inside, p.E * p.R ** 2 * x ** 1.5 * np.interp(x, depth, force / depth ** 1.5), np.nan)
 
 
 def report(problem, result, p):
     """force_depth (per step), depth_reached (over R), the contact force at the last step
     and the largest difference to Hertz at depths up to HERTZ_DEPTH R; in 3D also
     axisymmetric_difference, the largest relative difference of the contact force to the
-    axisymmetric model's (where its shipped run applies, else None)."""
+    axisymmetric model's at the depths its shipped run covers (None where it applies nowhere)."""
     rows = force_depth(problem, p)
     small = [abs(r["hertz_difference"]) for r in rows if r["depth"] <= HERTZ_DEPTH * p.R * (1 + 1e-9)]
     out = dict(force_depth=rows, depth_reached=rows[-1]["depth"] / p.R if rows else 0.0,
@@ -220,8 +221,9 @@ def report(problem, result, p):
                hertz_difference_small_depth=max(small) if small else None)
     if solid(p):
         F = axisymmetric(p, [r["depth"] for r in rows]) if rows else None
-        out["axisymmetric_difference"] = None if F is None else \
-            float(max(abs(r["force"] / f - 1) for r, f in zip(rows, F)))
+        differences = [] if F is None else \
+            [abs(r["force"] / f - 1) for r, f in zip(rows, F) if np.isfinite(f)]
+        out["axisymmetric_difference"] = float(max(differences)) if differences else None
     return out
 
 
