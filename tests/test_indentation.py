@@ -154,3 +154,25 @@ def test_the_3d_quarter_against_hertz_and_the_axisymmetric_model(indentation):
     reference = case.module.force_depth(axisymmetric, p2)[1]
     assert reference["depth"] == pytest.approx(row["depth"])
     assert row["force"] == pytest.approx(reference["force"], rel=AXISYMMETRIC_TOLERANCE_3D)
+    # the report's comparison with the shipped axisymmetric run (the same model and mesh as
+    # the fixture's: its force at this depth to 1e-6)
+    assert case.module.axisymmetric(p, [row["depth"]])[0] == pytest.approx(reference["force"], rel=1e-6)
+    out = case.module.report(problem, None, p)
+    assert out["axisymmetric_difference"] == pytest.approx(abs(row["force"] / reference["force"] - 1), rel=1e-4)
+
+
+def test_the_axisymmetric_reference_interpolates_the_shipped_run():
+    """F / d^(3/2) piecewise linear between the stored depths, NaN outside them, None for
+    another Poisson's ratio or block size."""
+    case = get("indentation")
+    m, p = case.module, case.parameters({"geometry": "3d"})
+    with open(m.AXISYMMETRIC) as f:
+        import json
+        ref = json.load(f)
+    d, F = np.array(ref["depth_over_R"]), np.array(ref["force_over_E_R2"])
+    assert np.allclose(m.axisymmetric(p, d), F, rtol=1e-12)
+    middle = 0.5 * (d[3] + d[4])
+    expected = middle ** 1.5 * 0.5 * (F[3] / d[3] ** 1.5 + F[4] / d[4] ** 1.5)
+    assert m.axisymmetric(p, [middle])[0] == pytest.approx(expected, rel=1e-12)
+    assert np.isnan(m.axisymmetric(p, [0.5 * d[0], 1.01 * d[-1]])).all()
+    assert m.axisymmetric(case.parameters({"geometry": "3d", "nu": "0.25"}), [0.01]) is None
