@@ -56,8 +56,8 @@ PARAMETERS = {
     "alpha0": ("0.2*limit", "Nitsche parameter (alpha = alpha0 h / E, h = cell diameter); "
                "the limits are those of the reference state"),
     "geometry": ("axisymmetric", "axisymmetric: the (r, z) model; 3d: a quarter of the block in "
-                 "tetrahedra with symmetry conditions (run it at --level 1: each level has about 8 "
-                 "times the cells)"),
+                 "tetrahedra with symmetry conditions (--level 0 --set steps=6: 4218 unknowns, "
+                 "about 4 minutes on 2 loaded cores; each level has about 8 times the cells)"),
 }
 RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "depth": Interval(0.0, 0.9),
           "steps": Interval(1.0, closed_lo=True), "size": Interval(2.0),
