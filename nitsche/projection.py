@@ -43,10 +43,15 @@ def shape_functions(vertices, eta):
                      "bilinear quadrilaterals (4) are supported")
 
 
+def on_lines(x, a, b):
+    """t of the closest point a + t (b - a) on the lines through a and b to points x (..., d)."""
+    e = b - a
+    return ((x - a) * e).sum(-1) / np.maximum((e * e).sum(-1), 1e-300)
+
+
 def on_segments(x, a, b):
     """t in [0, 1] of the closest point a + t (b - a) of segments a -> b to points x (..., d)."""
-    e = b - a
-    return np.clip(((x - a) * e).sum(-1) / np.maximum((e * e).sum(-1), 1e-300), 0.0, 1.0)
+    return np.clip(on_lines(x, a, b), 0.0, 1.0)
 
 
 def _nearest(x, candidates):
@@ -128,8 +133,7 @@ def on_facets(x, v):
     """The closest points of x (P, d) on facets v (P, vertices, d) (pairs): (eta, unclipped
     eta), each (P, d - 1)."""
     if v.shape[1] == 2:
-        t = ((x - v[:, 0]) * (v[:, 1] - v[:, 0])).sum(-1) / \
-            np.maximum(((v[:, 1] - v[:, 0]) ** 2).sum(-1), 1e-300)
+        t = on_lines(x, v[:, 0], v[:, 1])
         return np.clip(t, 0.0, 1.0)[:, None], t[:, None]
     if v.shape[1] == 3:
         return on_triangles(x, v)

@@ -155,7 +155,8 @@ def outward(mesh, vertices, cells):
     reference tangent dX/deta_1 at the centre that makes rot(t_1) (2D) or t_1 x t_2 (3D)
     point out of the cell."""
     v = mesh.p.T[vertices]  # (S, v, dim)
-    _, dN = shape_functions(vertices.shape[1], np.full((len(v), mesh.dim() - 1), 1 / 3 if vertices.shape[1] == 3 else 0.5))
+    centre = 1 / 3 if vertices.shape[1] == 3 else 0.5
+    _, dN = shape_functions(vertices.shape[1], np.full((len(v), mesh.dim() - 1), centre))
     t = np.einsum("sia,sik->ska", dN, v)
     n = np.stack([-t[:, 1, 0], t[:, 0, 0]], 1) if mesh.dim() == 2 else np.cross(t[:, :, 0], t[:, :, 1])
     out = v.mean(axis=1) - mesh.p[:, mesh.t[:, cells]].mean(axis=1).T
