@@ -63,6 +63,8 @@ class Sliding(Interface):
                              "degree two)")
         self.mine, self.other = mine, other
         facets_ = select_facets(other.mesh, onto)
+        if np.size(facets_) == 0:
+            raise ValueError(f"onto={onto!r} selects no facet of the other body: check the boundary")
         self.segments = other.mesh.facets[:, facets_].T  # (S, 2) vertex indices; in 3D (S, 3 or 4)
         self.segment_cells = other.mesh.f2t[0, facets_]
         self.orientation = outward(other.mesh, self.segments, self.segment_cells)

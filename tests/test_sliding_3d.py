@@ -258,6 +258,9 @@ def test_unsupported_facets_and_tangents_elsewhere_say_what_to_do():
     u2 = ni.Field("u2", m2, ElementVector(ElementHex2()))
     with pytest.raises(ValueError, match="mesh of degree one"):
         ni.interface(u1, "bottom", other=u2, pairing="current", onto="top")
+    u3 = ni.Field("u3", box(*[np.linspace(0, 1, 3)] * 3), ElementVector(ElementHex1()))
+    with pytest.raises(ValueError, match="selects no facet"):
+        ni.interface(u1, "bottom", other=u3, pairing="current", onto=lambda p: p[2] > 2)
     T1 = ni.facet_tangents(u1)
     with pytest.raises(ValueError, match="pairing='current'"):
         ni.Problem([u1, T1], [ni.Integral(lambda u1, T_u1: T_u1.value[0, 0] * u1.value[0],
