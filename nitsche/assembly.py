@@ -35,7 +35,7 @@ from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
 
-CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small terms, the rest
+CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small, large
 _COMPILED = {}
 _ALIVE = {}  # id -> object: an identity key stays valid while the object lives
 compile_seconds = [0.0]  # compilation time spent in this process
@@ -99,8 +99,8 @@ def global_names(code):
 
 def _pad(a, n):
     """Pad axis 0 to length n by repeating the last entry, or zeros for a term without
-    elements on this rank (results for the padding are discarded); only the last chunk of a
-    term is padded."""
+    elements on this rank (results for the padding are discarded); only the last (small)
+    chunk of a term is padded."""
     if a.shape[0] == n:
         return a
     if a.shape[0] == 0:
@@ -174,8 +174,7 @@ class Term:
         n = measure.normals
         self.has_normal = n is not None
         self.fields = [by_name[name] for name, _, _ in self.layout]
-        small, large = CHUNK_POINTS
-        self.chunk = max(1, (small if self.nel * self.nq <= small else large) // self.nq)
+        self.chunks = tuple(max(1, c // self.nq) for c in CHUNK_POINTS)  # elements per call
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
         # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
         self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
@@ -363,40 +362,50 @@ class Term:
             self.T = self.J = self.W = self.x = self.n = self.h = self.alpha0 = None
         return self._parts
 
-    def kernel(self, kind):
-        """The compiled chunk kernel: 'energy', 'gradient' (energy, gradient), 'full'
-        (energy, gradient, Hessian), 'jacobian' (per point) or 'values'."""
-        if kind in self._kernels:
-            return self._kernels[kind]
-        key = (kind, self.residual, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), self.chunk,
+    def kernel(self, kind, chunk):
+        """The compiled kernel of `chunk` elements: 'energy', 'gradient' (energy, gradient),
+        'full' (energy, gradient, Hessian), 'jacobian' (per point) or 'values'."""
+        if (kind, chunk) in self._kernels:
+            return self._kernels[kind, chunk]
+        key = (kind, self.residual, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), chunk,
                tuple((a.shape[0] == 1,) + a.shape[1:] for a in self.tables), tuple(self.maps),
                self.dim, self.has_normal, self.parameter_names)
         if key not in _COMPILED:
             coupling = self.coupling if kind == "full" else None
-            fn = _build(kind, self._point_fn(), self.sizes, self.chunk, self.nq, coupling, self.residual,
+            fn = _build(kind, self._point_fn(), self.sizes, chunk, self.nq, coupling, self.residual,
                         self.maps, self.kept)
-            args = [jax.ShapeDtypeStruct((1 if a.shape[0] == 1 else self.chunk,) + a.shape[1:], jnp.float64)
+            args = [jax.ShapeDtypeStruct((1 if a.shape[0] == 1 else chunk,) + a.shape[1:], jnp.float64)
                     for a in self.tables]
-            args += [jax.ShapeDtypeStruct((self.chunk, k), jnp.float64) for _, k in self.sizes]
-            args += [jax.ShapeDtypeStruct((self.chunk,) + a.shape[1:], jnp.float64)
+            args += [jax.ShapeDtypeStruct((chunk, k), jnp.float64) for _, k in self.sizes]
+            args += [jax.ShapeDtypeStruct((chunk,) + a.shape[1:], jnp.float64)
                      for a in (self.W, self.x, self.n, self.h, self.alpha0, self.parameter_data(1))]
             t = time.perf_counter()
             _COMPILED[key] = jax.jit(fn).lower(*args).compile()
             compile_seconds[0] += time.perf_counter() - t
-        self._kernels[kind] = _COMPILED[key]
-        return self._kernels[kind]
+        self._kernels[kind, chunk] = _COMPILED[key]
+        return self._kernels[kind, chunk]
+
+    def blocks(self, nel):
+        """(start, size) of the kernel calls over nel elements: calls of the large chunk while
+        a whole one is left, then calls of the small one, so that at most one small chunk is
+        padded (a term of 1.1 large chunks is not padded to 2, nor one of 2 small ones to a
+        large one); no elements: one padded small call, no rows."""
+        small, large = self.chunks
+        whole = nel // large * large if large > small else 0
+        return [(s, large) for s in range(0, whole, large)] + \
+            [(s, small) for s in range(whole, max(nel, whole + 1), small)]
 
     def run(self, kind, x, elements=None):
         """Apply a kernel to all elements (or to the given ones) for the global dof vector x."""
-        kern = self.kernel(kind)
         us = [x[d] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
         outs = []
-        for s in range(0, max(nel, 1), self.chunk):  # no elements: one padded chunk, no rows
-            sl = slice(s, s + self.chunk) if elements is None else elements[s: s + self.chunk]
-            Ts = [a if a.shape[0] == 1 else _pad(a[sl], self.chunk) for a in self.tables]
-            rest = [_pad(a[sl], self.chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            outs.append(kern(*Ts, *rest, self.parameter_data(self.chunk)))
+        for s, chunk in self.blocks(nel):
+            kern = self.kernel(kind, chunk)
+            sl = slice(s, s + chunk) if elements is None else elements[s: s + chunk]
+            Ts = [a if a.shape[0] == 1 else _pad(a[sl], chunk) for a in self.tables]
+            rest = [_pad(a[sl], chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
+            outs.append(kern(*Ts, *rest, self.parameter_data(chunk)))
         return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
 
 
