@@ -61,6 +61,10 @@ def parser():
     run.add_argument("--global-check", action="store_true",
                      help="diagnostic: also solve the global eigenproblems of alpha0 (sparse LU; "
                           "result.json: alpha0_global_limits, alpha0_stability_ratio)")
+    run.add_argument("--pieces-only", action="store_true",
+                     help="under mpirun: write result.json's common keys and the ranks' pieces of "
+                          "the solution (.pvtu) only, not the outputs that need the whole problem "
+                          "on rank 0 (the case's errors, report and figures, solution.png)")
     st = sub.add_parser("study", help="uniform refinement study with nested iteration", add_help=False)
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")
@@ -228,7 +232,8 @@ def execute(case, args, p, out, options):
             if args.command == "run":
                 rc = commands.run(case, args.level, args.degree, p, folder, options,
                                   nested=args.nested, verbose=args.verbose,
-                                  global_check=args.global_check, engine=engine)
+                                  global_check=args.global_check, engine=engine,
+                                  whole_outputs=not args.pieces_only)
             else:
                 rc = commands.study(case, args.levels, args.degree, p, folder, options,
                                     start=args.start)
@@ -249,12 +254,11 @@ def execute(case, args, p, out, options):
 
 
 def follow(case, args, p, options):
-    """A rank other than 0 of a run under mpirun: its part of the solve (rank 0 writes)."""
+    """A rank other than 0 of a run under mpirun: its part of the solve and of the outputs
+    (its pieces of the solution; rank 0 commits the folder)."""
     from . import commands
-    _, result, _, failure = commands.solve(case, args.level, args.degree, p, options,
-                                           nested=args.nested,
-                                           engine=distributed.DistributedProblem.build)
-    return 0 if result.converged and failure is None else 1
+    return commands.run(case, args.level, args.degree, p, None, options, nested=args.nested,
+                        engine=distributed.DistributedProblem.build)
 
 
 if __name__ == "__main__":

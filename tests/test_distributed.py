@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nitsche import cases
@@ -99,10 +100,90 @@ def test_mpirun_nitsche_run_writes_one_result(tmp_path):
                   "--out", str(out), "-ksp_type", "gmres", "-ksp_view")
     data = json.loads((out / "result.json").read_text())
     assert data["ranks"] == 2 and data["converged"] and data["solver"] == "petsc-gamg"
-    assert sorted(p.suffix for p in out.iterdir() if p.suffix == ".vtu") == [".vtu"]
+    assert sorted(p.suffix for p in out.iterdir() if p.suffix in (".vtu", ".pvtu")) == \
+        [".pvtu", ".vtu", ".vtu"]  # a piece per rank and their collection
     assert text.count("wrote ") == 1  # rank 0 alone reports
     assert "type: gmres" in text  # PETSc options pass through (-ksp_view prints the KSP)
     case = cases.get("obstacle")
     result = solve_nested(case, 2, 1, case.parameters({}))[1]
     assert abs(data["energy"] - result.energy) <= 1e-10 * abs(result.energy)
     assert data["nested_iterations"][-1] == result.iterations
+
+
+def read_pvtu(path):
+    """The pieces of a .pvtu (read with meshio): [(points, cells, point data, cell data)]."""
+    import xml.etree.ElementTree as ET
+    import meshio
+    names = [p.get("Source") for p in ET.parse(path).getroot().iter("Piece")]
+    out = []
+    for name in names:
+        m = meshio.read(path.parent / name)
+        out.append((m.points, m.cells[0].data, m.point_data,
+                    {k: v[0] for k, v in m.cell_data.items()}))
+    return names, out
+
+
+def by_position(points, where):
+    """Row of `points` at each of the coordinates `where` (they must all be found)."""
+    from scipy.spatial import cKDTree
+    d, i = cKDTree(points).query(where)
+    assert d.max() <= 1e-12, d.max()
+    return i
+
+
+@pytest.mark.parametrize("name, level, ranks", [("obstacle", 3, 2), ("elastic-contact", 2, 3)])
+def test_pvtu_pieces_hold_every_cell_once_with_the_serial_values(tmp_path, name, level, ranks):
+    """mpirun nitsche run writes one piece per rank and mesh (no rebuilt whole problem for
+    them) and a .pvtu naming them: together the pieces hold every cell of the serial VTU
+    exactly once, and their point data (the solution, the multiplier averaged to the
+    vertices across the ranks) and cell data (alpha0) are the serial ones; reactions too."""
+    import meshio
+    from nitsche.io import write_vtu
+    from nitsche.reactions import reactions
+    out = tmp_path / "run"
+    mpirun(ranks, "-m", "nitsche.cli", "run", name, "--level", str(level), "--solver", "direct",
+           "--out", str(out))
+    data = json.loads((out / "result.json").read_text())
+    assert data["ranks"] == ranks and data["converged"] and data["whole_problem_outputs"]
+    case = cases.get(name)
+    problem, result = solve_nested(case, level, case.degrees[0], case.parameters({}),
+                                   dict(solver="superlu"))[:2]
+    serial = write_vtu(str(tmp_path / "serial"), problem, result.x)
+    collections = sorted(p for p in out.iterdir() if p.suffix == ".pvtu")
+    assert len(collections) == len(serial)
+    for collection, whole_path in zip(collections, sorted(serial)):
+        names, pieces = read_pvtu(collection)
+        assert len(pieces) == ranks and all((out / n).exists() for n in names)
+        whole = meshio.read(whole_path)
+        centroids = whole.points[whole.cells[0].data].mean(axis=1)
+        seen = np.zeros(len(centroids), int)
+        for points, cells, point_data, cell_data in pieces:
+            rows = by_position(centroids, points[cells].mean(axis=1))
+            np.add.at(seen, rows, 1)
+            at = by_position(whole.points, points)
+            assert set(point_data) == set(whole.point_data)
+            for k, v in point_data.items():
+                scale = max(np.abs(whole.point_data[k]).max(), 1e-300)
+                assert np.abs(v - whole.point_data[k][at]).max() <= 1e-7 * scale, (k, collection)
+            for k, v in cell_data.items():
+                w = whole.cell_data[k][0][rows]
+                assert np.allclose(v, w, rtol=1e-12, atol=0.0, equal_nan=True), k
+        assert (seen == 1).all(), (collection, np.bincount(seen))
+    expected = reactions(problem, result.x)
+    for f, regions in expected.items():
+        for region, R in regions.items():
+            scale = max(np.abs(R).max(), 1e-300)
+            assert np.abs(np.subtract(data["reactions"][f][region], R)).max() <= 1e-7 * scale
+    assert data["errors"].keys() == case.errors(problem, result, case.parameters({})).keys()
+
+
+def test_pieces_only_writes_no_whole_problem_outputs(tmp_path):
+    """--pieces-only: result.json's common keys and the pieces, none of the outputs of the
+    whole problem (solution.png, the case's errors)."""
+    out = tmp_path / "run"
+    mpirun(2, "-m", "nitsche.cli", "run", "obstacle", "--level", "2", "--out", str(out),
+           "--pieces-only")
+    data = json.loads((out / "result.json").read_text())
+    assert data["converged"] and not data["whole_problem_outputs"] and "errors" not in data
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == \
+        ["result.json", "solution.pvtu", "solution_r0.vtu", "solution_r1.vtu"]
