@@ -83,6 +83,7 @@ class DistributedProblem:
                               for k, v in local.alpha0_limits.items()}
         self.elements = self.comm.allgather([t.nel for t in local.assembler.terms])  # per rank, per term
         self.assembler = SummedAssembler(self)
+        self.summed_numbers = 0  # numbers reduced on rank 0 and broadcast (the O(N) traffic)
         self.layout = Layout(self)
         self.matrix = self.layout.matrix()
         self.off_rank_entries = self.comm.allreduce(self.layout.off_rank)
@@ -105,6 +106,7 @@ class DistributedProblem:
         """sum over ranks of a (a number or an array), reduced on rank 0 and broadcast."""
         from mpi4py import MPI
         a = np.ascontiguousarray(np.atleast_1d(a), dtype=float)
+        self.summed_numbers += a.size
         total = np.empty_like(a)
         self.comm.Reduce(a, total, op=MPI.SUM, root=0)
         self.comm.Bcast(total, root=0)
@@ -218,6 +220,7 @@ class Layout:
         lo, hi = self.start, self.start + self.counts[dp.rank]
         self.off_rank = int(((self.rows < lo) | (self.rows >= hi)).sum())  # rows of other ranks
         self.owner = owner
+        self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
 
     def matrix(self):
         """The PETSc matrix, its pattern set once (values: set_values)."""
@@ -246,6 +249,7 @@ class Layout:
         """A PETSc vector as a replicated free vector (serial numbering) on every rank."""
         local = np.ascontiguousarray(x.getArray(readonly=True))
         whole = np.empty(self.n)
+        self.gathered_numbers += self.n
         self.comm.Allgatherv(local, [whole, self.counts])
         out = np.empty(self.n)
         out[self.order] = whole
@@ -352,7 +356,9 @@ class KrylovSolver:
     def stats(self):
         return dict(ranks=self.dp.ranks, ksp_iterations=list(self.iterations),
                     elements=self.dp.elements, off_rank_entries=self.dp.off_rank_entries,
-                    straddling_constraint_elements=self.dp.straddling)
+                    straddling_constraint_elements=self.dp.straddling,
+                    summed_numbers=self.dp.summed_numbers,
+                    gathered_numbers=self.dp.layout.gathered_numbers)
 
 
 def reason_name(reason):
