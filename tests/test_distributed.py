@@ -1,8 +1,10 @@
 """nitsche.distributed under mpirun: 1, 2 and 3 ranks give the serial energy and Newton
 iterations (obstacle; two-membrane: two fields; elastic-contact: an interface across rank
 boundaries, two meshes; membrane-solid: 3D, CG + GAMG), each rank building the elements of
-its own cells only; `mpirun nitsche run` writes one result.json and one VTU.  Skipped
-without petsc4py / mpirun (installed by `make petsc`)."""
+its own cells only; `mpirun nitsche run` writes one result.json and a .pvtu of one piece
+per rank (together every cell once, with the serial values); the ghosted free vectors
+(gradient, Hessian products, norms) equal the serial ones.  Skipped without petsc4py /
+mpirun (installed by `make petsc`)."""
 import json
 import os
 import shutil
@@ -94,7 +96,8 @@ def test_3d_with_gamg(ranks, reference):
 
 
 def test_mpirun_nitsche_run_writes_one_result(tmp_path):
-    """Rank 0 writes result.json and one VTU; PETSc options reach the KSP."""
+    """Rank 0 writes result.json and the .pvtu, each rank its piece; PETSc options reach
+    the KSP."""
     out = tmp_path / "run"
     text = mpirun(2, "-m", "nitsche.cli", "run", "obstacle", "--level", "2", "--solver", "gamg",
                   "--out", str(out), "-ksp_type", "gmres", "-ksp_view")
@@ -187,3 +190,25 @@ def test_pieces_only_writes_no_whole_problem_outputs(tmp_path):
     assert data["converged"] and not data["whole_problem_outputs"] and "errors" not in data
     assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == \
         ["result.json", "solution.pvtu", "solution_r0.vtu", "solution_r1.vtu"]
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_ghosted_vectors_equal_the_serial_ones(ranks):
+    """On every rank the gradient (free dofs its elements hold, owned and ghosts, and the
+    fixed dofs), the Hessian's product and J_h equal the whole problem's to round-off, the
+    norm and dot product of free vectors too (owned entries, reduced); each rank holds a
+    part of the free dofs, and a gradient evaluation reduces only the fixed dofs' entries
+    and J_h (not the N free ones)."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_ghosts.py"), "obstacle:2",
+                   "elastic-contact:1", "membrane-solid:0")
+    for case in map(json.loads, lines.strip().splitlines()):
+        rows = case["ranks"]
+        assert len(rows) == ranks
+        for r in rows:
+            for k in ("gradient", "gradient_fixed", "newton_gradient", "energy", "product",
+                      "norm", "dot"):
+                assert r[k] <= 1e-13, (case["case"], k, r)
+            assert r["owned"] <= r["held"] < r["free"], (case["case"], r)
+            assert r["summed_per_gradient"] == r["fixed"] + 1, (case["case"], r)
+        assert sum(r["owned"] for r in rows) == rows[0]["free"]
+        assert sum(r["held"] - r["owned"] for r in rows) > 0  # ghosts (rank 0 owns its shared dofs)
