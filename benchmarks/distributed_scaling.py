@@ -6,7 +6,8 @@ writes its VTU, as `mpirun nitsche run` did before the pieces (and still does fo
 own figures and report unless --pieces-only).  Rank 0 prints one JSON line: set-up, Newton and
 output seconds (wall: the slowest rank's; CPU: each rank's, less moved by other jobs on shared
 cores), Newton iterations, energy, the numbers summed (reduced + broadcast) and all-gathered
-per rank during Newton (the O(N) traffic of the replicated dof vectors), and each rank's peak
+during Newton, the free dofs each rank holds and owns (the others held are its ghosts, whose
+values the scatters move), and each rank's peak
 resident memory (MiB) after the imports, the set-up, the solve, the pieces and (rank 0) the
 whole problem's VTU."""
 import json
@@ -56,6 +57,9 @@ def main(name, level, solver):
                timings=result.timings, iterations=result.iterations, energy=result.energy,
                ksp_iterations=stats["ksp_iterations"], off_rank_entries=stats["off_rank_entries"],
                summed_numbers=stats["summed_numbers"], gathered_numbers=stats["gathered_numbers"],
+               fixed=int(problem.fixed.size),
+               held_free=comm.gather(int(problem.layout.held.size), root=0),
+               owned_free=comm.gather(int(problem.layout.mine.size), root=0),
                setup_cpu_seconds=comm.gather(round(setup_cpu, 2), root=0),
                newton_cpu_seconds=comm.gather(round(newton_cpu, 2), root=0),
                pieces_cpu_seconds=comm.gather(round(pieces_cpu, 2), root=0),
