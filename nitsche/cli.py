@@ -223,12 +223,19 @@ def new_case(name):
 def execute(case, args, p, out, options):
     """Solve into an OutputFolder and commit it; a failed write leaves the folder as it was."""
     from . import commands
-    if args.ranks is not None and args.ranks.rank > 0:
+    comm = args.ranks
+    if comm is not None and comm.rank > 0:
+        if not comm.bcast(None, root=0):  # rank 0 could not open the folder (it says why)
+            return USAGE
         return follow(case, args, p, options)
-    folder = OutputFolder(out, overwrite=args.overwrite)
-    engine = distributed.DistributedProblem.build if args.ranks is not None else None
+    engine = distributed.DistributedProblem.build if comm is not None else None
+    opened, folder = False, None
     try:
+        folder = OutputFolder(out, overwrite=args.overwrite)
         with folder:
+            opened = True
+            if comm is not None:  # the other ranks start solving
+                comm.bcast(True, root=0)
             if args.command == "run":
                 rc = commands.run(case, args.level, args.degree, p, folder, options,
                                   nested=args.nested, verbose=args.verbose,
@@ -239,7 +246,7 @@ def execute(case, args, p, out, options):
                                     start=args.start)
             paths = folder.commit()
     except (KeyboardInterrupt, Interrupted) as e:
-        if not folder.committed:
+        if folder is None or not folder.committed:
             raise
         signum = e.signum if isinstance(e, Interrupted) else signal.SIGINT
         print(f"nitsche: interrupted ({signal.Signals(signum).name}) after the output was "
@@ -249,6 +256,9 @@ def execute(case, args, p, out, options):
         print(f"nitsche: error: could not write the output into {out}: {e.strerror or e}; "
               "the folder holds what it held before", file=sys.stderr)
         return WRITE_FAILED
+    finally:
+        if comm is not None and not opened:
+            comm.bcast(False, root=0)
     print(commands.written(paths))
     return rc
 
@@ -257,8 +267,11 @@ def follow(case, args, p, options):
     """A rank other than 0 of a run under mpirun: its part of the solve and of the outputs
     (its pieces of the solution; rank 0 commits the folder)."""
     from . import commands
-    return commands.run(case, args.level, args.degree, p, None, options, nested=args.nested,
-                        engine=distributed.DistributedProblem.build)
+    try:
+        return commands.run(case, args.level, args.degree, p, None, options, nested=args.nested,
+                            engine=distributed.DistributedProblem.build)
+    except OSError:  # a piece could not be written (raised on every rank): rank 0 reports
+        return WRITE_FAILED
 
 
 if __name__ == "__main__":

@@ -212,3 +212,18 @@ def test_ghosted_vectors_equal_the_serial_ones(ranks):
             assert r["summed_per_gradient"] == r["fixed"] + 1, (case["case"], r)
         assert sum(r["owned"] for r in rows) == rows[0]["free"]
         assert sum(r["held"] - r["owned"] for r in rows) > 0  # ghosts (rank 0 owns its shared dofs)
+
+
+def test_an_unusable_output_folder_stops_every_rank(tmp_path):
+    """--out naming a file: rank 0 says so before solving and the other ranks stop too
+    (instead of waiting in the solve's first reduction)."""
+    target = tmp_path / "a-file"
+    target.write_text("")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+               OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    out = subprocess.run(["mpirun", "-n", "2", sys.executable, "-m", "nitsche.cli", "run", "obstacle",
+                          "--level", "1", "--out", str(target)], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode != 0 and "is a file, not a folder" in out.stderr, out.stderr
+    assert target.read_text() == ""
