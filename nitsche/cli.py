@@ -155,6 +155,9 @@ def check_options(args):
         raise ParameterError(f"--solver {args.solver}: " + (
             f"under mpirun the solver is one of {', '.join(mpi)}" if args.ranks else
             "a PETSc solver, for runs under mpirun (mpirun -n N nitsche run ...)"))
+    if getattr(args, "pieces_only", False) and not args.ranks:
+        raise ParameterError("--pieces-only is for runs under mpirun (mpirun -n N nitsche run "
+                             "...); a serial run writes all its outputs")
     if args.maxiter < 0:
         raise ParameterError(f"--maxiter must be >= 0 (Newton iterations), got {args.maxiter}")
     if not (math.isfinite(args.rtol) and 0 < args.rtol < 1):

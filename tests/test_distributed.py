@@ -227,3 +227,10 @@ def test_an_unusable_output_folder_stops_every_rank(tmp_path):
                          capture_output=True, text=True, timeout=300)
     assert out.returncode != 0 and "is a file, not a folder" in out.stderr, out.stderr
     assert target.read_text() == ""
+
+
+def test_pieces_only_is_refused_without_mpirun(tmp_path, capsys):
+    from nitsche.cli import main
+    assert main(["run", "obstacle", "--level", "0", "--pieces-only", "--out", str(tmp_path / "o")]) == 2
+    assert "--pieces-only is for runs under mpirun" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
