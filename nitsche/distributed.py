@@ -161,7 +161,7 @@ class DistributedProblem:
         self.layout.set_values(data)
         step = np.zeros(self.local.ndofs)
         step[self.local.fixed] = d
-        rhs = self.summed(self.local.assembler.matrix(data) @ step)[self.local.free]
+        rhs = self.layout.assembled((self.local.assembler.matrix(data) @ step)[self.local.free])
         x[self.local.free] += solve(self.matrix, -rhs)
         return x
 
