@@ -1,16 +1,28 @@
 """Strong scaling and memory per rank of the distributed engine: under
 `mpirun -n R python benchmarks/distributed_scaling.py CASE LEVEL SOLVER`, each rank builds its
-part of the case's problem (nitsche.partition) and Newton solves from zero; rank 0 prints
-one JSON line: set-up and Newton seconds (wall: the slowest rank's; CPU: each rank's, less
-moved by other jobs on shared cores), Newton iterations, energy, and each rank's peak
-resident memory (MiB) after the imports, after the set-up and after the solve."""
+part of the case's problem (nitsche.partition) and Newton solves from zero; then every rank
+writes its piece of the solution (nitsche.pvtu), and rank 0 rebuilds the whole problem and
+writes its VTU, as `mpirun nitsche run` did before the pieces (and still does for the case's
+own figures and report unless --pieces-only).  Rank 0 prints one JSON line: set-up, Newton and
+output seconds (wall: the slowest rank's; CPU: each rank's, less moved by other jobs on shared
+cores), Newton iterations, energy, the numbers summed (reduced + broadcast) and all-gathered
+during Newton, the free dofs each rank holds and owns (the others held are its ghosts, whose
+values the scatters move), and each rank's peak
+resident memory (MiB) after the imports, the set-up, the solve, the pieces and (rank 0) the
+whole problem's VTU."""
 import json
+import os
 import resource
+import shutil
 import sys
+import tempfile
 import time
 
 from nitsche import cases
+from nitsche.commands import whole
 from nitsche.distributed import DistributedProblem
+from nitsche.io import write_vtu
+from nitsche.pvtu import write_pieces
 
 
 def peak_mib():
@@ -29,19 +41,40 @@ def main(name, level, solver):
     c = time.process_time()
     result = problem.minimize(solver=solver)
     newton_cpu = time.process_time() - c
+    after_solve = peak_mib()
     comm = problem.comm
+    folder = comm.bcast(tempfile.mkdtemp() if comm.rank == 0 else None, root=0)
+    comm.Barrier()
+    t, c = time.perf_counter(), time.process_time()
+    write_pieces("solution", problem, result.x, folder)
+    pieces, pieces_cpu = time.perf_counter() - t, time.process_time() - c
+    after_pieces = peak_mib()
+    stats = result.solver_stats
     row = dict(case=name, level=level, unknowns=int(problem.free.size), ranks=comm.size,
                setup_seconds=comm.allreduce(setup, op=max_op()),
                newton_seconds=comm.allreduce(result.seconds, op=max_op()),
+               pieces_seconds=comm.allreduce(pieces, op=max_op()),
                timings=result.timings, iterations=result.iterations, energy=result.energy,
-               ksp_iterations=result.solver_stats["ksp_iterations"],
-               off_rank_entries=result.solver_stats["off_rank_entries"],
+               ksp_iterations=stats["ksp_iterations"], off_rank_entries=stats["off_rank_entries"],
+               summed_numbers=stats["summed_numbers"], gathered_numbers=stats["gathered_numbers"],
+               fixed=int(problem.fixed.size),
+               held_free=comm.gather(int(problem.layout.held.size), root=0),
+               owned_free=comm.gather(int(problem.layout.mine.size), root=0),
                setup_cpu_seconds=comm.gather(round(setup_cpu, 2), root=0),
                newton_cpu_seconds=comm.gather(round(newton_cpu, 2), root=0),
+               pieces_cpu_seconds=comm.gather(round(pieces_cpu, 2), root=0),
                baseline_mib=comm.gather(round(baseline), root=0),
                setup_peak_mib=comm.gather(round(after_setup), root=0),
-               peak_mib=comm.gather(round(peak_mib()), root=0))
+               solve_peak_mib=comm.gather(round(after_solve), root=0),
+               pieces_peak_mib=comm.gather(round(after_pieces), root=0))
     if comm.rank == 0:
+        t, c = time.perf_counter(), time.process_time()
+        serial, r = whole(case, problem, result, case.degrees[0], p)
+        write_vtu(os.path.join(folder, "whole"), serial, r.x)
+        row.update(whole_vtu_seconds=round(time.perf_counter() - t, 2),
+                   whole_vtu_cpu_seconds=round(time.process_time() - c, 2),
+                   whole_vtu_peak_mib=round(peak_mib()))
+        shutil.rmtree(folder)
         print(json.dumps(row), flush=True)
 
 

@@ -61,6 +61,10 @@ def parser():
     run.add_argument("--global-check", action="store_true",
                      help="diagnostic: also solve the global eigenproblems of alpha0 (sparse LU; "
                           "result.json: alpha0_global_limits, alpha0_stability_ratio)")
+    run.add_argument("--pieces-only", action="store_true",
+                     help="under mpirun: write result.json's common keys and the ranks' pieces of "
+                          "the solution (.pvtu) only, not the outputs that need the whole problem "
+                          "on rank 0 (the case's errors, report and figures, solution.png)")
     st = sub.add_parser("study", help="uniform refinement study with nested iteration", add_help=False)
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")
@@ -151,6 +155,9 @@ def check_options(args):
         raise ParameterError(f"--solver {args.solver}: " + (
             f"under mpirun the solver is one of {', '.join(mpi)}" if args.ranks else
             "a PETSc solver, for runs under mpirun (mpirun -n N nitsche run ...)"))
+    if getattr(args, "pieces_only", False) and not args.ranks:
+        raise ParameterError("--pieces-only is for runs under mpirun (mpirun -n N nitsche run "
+                             "...); a serial run writes all its outputs")
     if args.maxiter < 0:
         raise ParameterError(f"--maxiter must be >= 0 (Newton iterations), got {args.maxiter}")
     if not (math.isfinite(args.rtol) and 0 < args.rtol < 1):
@@ -219,22 +226,30 @@ def new_case(name):
 def execute(case, args, p, out, options):
     """Solve into an OutputFolder and commit it; a failed write leaves the folder as it was."""
     from . import commands
-    if args.ranks is not None and args.ranks.rank > 0:
+    comm = args.ranks
+    if comm is not None and comm.rank > 0:
+        if not comm.bcast(None, root=0):  # rank 0 could not open the folder (it says why)
+            return USAGE
         return follow(case, args, p, options)
-    folder = OutputFolder(out, overwrite=args.overwrite)
-    engine = distributed.DistributedProblem.build if args.ranks is not None else None
+    engine = distributed.DistributedProblem.build if comm is not None else None
+    opened, folder = False, None
     try:
+        folder = OutputFolder(out, overwrite=args.overwrite)
         with folder:
+            opened = True
+            if comm is not None:  # the other ranks start solving
+                comm.bcast(True, root=0)
             if args.command == "run":
                 rc = commands.run(case, args.level, args.degree, p, folder, options,
                                   nested=args.nested, verbose=args.verbose,
-                                  global_check=args.global_check, engine=engine)
+                                  global_check=args.global_check, engine=engine,
+                                  whole_outputs=not args.pieces_only)
             else:
                 rc = commands.study(case, args.levels, args.degree, p, folder, options,
                                     start=args.start)
             paths = folder.commit()
     except (KeyboardInterrupt, Interrupted) as e:
-        if not folder.committed:
+        if folder is None or not folder.committed:
             raise
         signum = e.signum if isinstance(e, Interrupted) else signal.SIGINT
         print(f"nitsche: interrupted ({signal.Signals(signum).name}) after the output was "
@@ -244,17 +259,22 @@ def execute(case, args, p, out, options):
         print(f"nitsche: error: could not write the output into {out}: {e.strerror or e}; "
               "the folder holds what it held before", file=sys.stderr)
         return WRITE_FAILED
+    finally:
+        if comm is not None and not opened:
+            comm.bcast(False, root=0)
     print(commands.written(paths))
     return rc
 
 
 def follow(case, args, p, options):
-    """A rank other than 0 of a run under mpirun: its part of the solve (rank 0 writes)."""
+    """A rank other than 0 of a run under mpirun: its part of the solve and of the outputs
+    (its pieces of the solution; rank 0 commits the folder)."""
     from . import commands
-    _, result, _, failure = commands.solve(case, args.level, args.degree, p, options,
-                                           nested=args.nested,
-                                           engine=distributed.DistributedProblem.build)
-    return 0 if result.converged and failure is None else 1
+    try:
+        return commands.run(case, args.level, args.degree, p, None, options, nested=args.nested,
+                            engine=distributed.DistributedProblem.build)
+    except OSError:  # a piece could not be written (raised on every rank): rank 0 reports
+        return WRITE_FAILED
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ import time
 
 from .io import write_json, write_pvd, write_vtu
 from .plot import plot_convergence, plot_path, plot_solution
+from .pvtu import write_pieces
 from .quantities import evaluate
 from .reactions import reactions
 from .study import StudyFailed, run_study, solve_nested, table
@@ -41,8 +42,9 @@ def solve(case, level, degree, p, options, nested=True, verbose=False, engine=No
 
 
 def whole(case, problem, result, degree, p):
-    """The whole problem of a distributed one (rank 0 builds it for the outputs: its set-up
-    and memory are the serial ones) and the result on it."""
+    """The whole problem of a distributed one (rank 0 builds it for the outputs that are
+    the case's own code on a whole problem: its set-up and memory are the serial ones) and
+    the result on it."""
     serial = case.problem(problem.setup.level, degree, p)
     serial.set_state(problem.state()[:2])  # (its alpha0 is its own: the ranks' are rank-local)
     if hasattr(problem, "path"):
@@ -51,15 +53,19 @@ def whole(case, problem, result, degree, p):
 
 
 def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False,
-        engine=None):
+        engine=None, whole_outputs=True):
     """Solve (see solve) and write the outputs; global_check: also the global alpha0
-    limits and the stability ratio (J_h convex if <= 1); with an engine (MPI ranks) the
-    outputs are those of the whole problem, gathered on this rank (0)."""
+    limits and the stability ratio (J_h convex if <= 1).  With an engine (MPI ranks) it is
+    collective, `out` None on the ranks other than 0: result.json's common keys come from
+    the ranks (energy, constraint report, reactions from the summed gradient, alpha0 limits
+    reduced) and the solution is a .pvtu of the ranks' pieces (nitsche.pvtu); the outputs
+    that are the case's own code on a whole problem (its errors, report and figures,
+    declared quantities, solution.png, global_check) are computed on the whole problem,
+    which rank 0 then builds, unless whole_outputs is False (they are left out)."""
     t0 = time.perf_counter()
     problem, result, its, failure = solve(case, level, degree, p, options, nested, verbose, engine)
-    if engine:
-        problem, result = whole(case, problem, result, degree, p)
     seconds = time.perf_counter() - t0
+    rank = problem.rank if engine else 0
     reached = problem.setup.level
     if failure and reached < level:
         print(f"nitsche: Newton failed at level {failure['level']} ({failure['reason']}): "
@@ -68,9 +74,6 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     print(f"{case.name}: level {reached}, degree {degree}, {problem.ndofs} dofs "
           f"({problem.free.size} unknowns); Newton iterations per level {its}")
     print(result.report())
-    errors = case.errors(problem, result, p)
-    for k, v in errors.items():
-        print(f"  error {k}: {v:.6e}")
     data = dict(case=case.name, level=level, level_reached=reached, degree=degree,
                 dofs=int(problem.ndofs), unknowns=int(problem.free.size),
                 converged=result.converged and failure is None, reason=result.reason,
@@ -82,25 +85,42 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
                 feasible=result.feasible, seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
                 solver=result.solver, solver_stats=result.solver_stats, ranks=result.ranks,
                 parameters=vars(p),
-                alpha0_limits=problem.alpha0_limits, constraints=result.constraints, errors=errors,
+                alpha0_limits=problem.alpha0_limits, constraints=result.constraints,
                 reactions=reactions(problem, result.x))
     if failure and reached < level:
         data["reason"] = f"level {failure['level']}: {failure['reason']}"
+    vtu = solution_writer(problem, out) if engine else \
+        lambda prefix, x, vertex_data=None: out.adopt(write_vtu(out.stage_prefix(prefix), problem, x,
+                                                                vertex_data))
+    steps = getattr(problem, "path", None)
+    if steps is not None:
+        data.update(steps=steps.steps, step_cuts=steps.cuts, path_seconds=steps.seconds)
+        write_path(steps, out, vtu, lambda k: steps.at(problem, k),
+                   f"{case.name}, level {reached}, P{degree}")
+    if engine:
+        vtu("solution", result.x)
+        if rank > 0:
+            return 0 if data["converged"] else 1
+        data["whole_problem_outputs"] = whole_outputs
+        if not whole_outputs:
+            write_json(out.stage("result.json"), data)
+            return 0 if data["converged"] else 1
+        problem, result = whole(case, problem, result, degree, p)
+    errors = case.errors(problem, result, p)
+    for k, v in errors.items():
+        print(f"  error {k}: {v:.6e}")
+    data["errors"] = errors
     if global_check:  # J_h is convex if the ratio is at most 1
         data.update(alpha0_global_limits=problem.stability_limits(),
                     alpha0_stability_ratio=problem.stability_ratio())
     extra = getattr(case.module, "report", None)
     if extra:
         data.update(extra(problem, result, p))
-    steps = getattr(problem, "path", None)
-    if steps is not None:
-        data.update(steps=steps.steps, step_cuts=steps.cuts, path_seconds=steps.seconds)
-        write_path(problem, steps, out, f"{case.name}, level {reached}, P{degree}")
     declared = getattr(case.module, "quantities", None)  # quantities(p) -> {name: density}
     found = evaluate(problem, result.x, declared(p)) if declared else {}
     data["quantities"] = {k: s for k, (s, _, _) in found.items()}
-    out.adopt(write_vtu(out.stage_prefix("solution"), problem, result.x,
-                        {k: (m, v) for k, (_, m, v) in found.items()}))
+    if not engine:  # (on MPI ranks the pieces are written: without the declared quantities)
+        vtu("solution", result.x, {k: (m, v) for k, (_, m, v) in found.items()})
     out.adopt([plot_solution(problem, result, out.stage("solution.png"),
                              f"{case.name}, level {reached}, P{degree}")])
     hook = getattr(case.module, "figures", None)  # figures(problem, result, p, folder) -> paths
@@ -110,18 +130,33 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     return 0 if data["converged"] else 1
 
 
-def write_path(problem, steps, out, title):
+def solution_writer(dp, out):
+    """vtu(prefix, x) on MPI ranks (collective): the pieces of x and their .pvtu into rank
+    0's staging folder, all adopted there; returns the .pvtu names (on rank 0)."""
+    staging = dp.comm.bcast(out.staging if dp.rank == 0 else None, root=0)
+
+    def vtu(prefix, x, vertex_data=None):
+        pieces, collections = write_pieces(prefix, dp, x, staging)
+        if dp.rank > 0:
+            return []
+        out.adopt(pieces)
+        return out.adopt(collections)
+    return vtu
+
+
+def write_path(steps, out, vtu, at, title):
     """A load path's VTU series solution_NNNN.vtu (one per accepted step, solution_NNNN_i.vtu
-    per mesh i of several), their collection solution.pvd (ParaView: time = the step's
-    time) and the reactions against time, reactions.png; the problem is left at the last
-    accepted step."""
+    per mesh i of several; .pvtu on MPI ranks), their collection solution.pvd (ParaView:
+    time = the step's time) and the reactions against time, reactions.png; at(k) sets the
+    problem to accepted step k and returns its solution (the problem is left at the last
+    accepted step).  vtu(prefix, x) writes and adopts, returning the names; out is None on
+    MPI ranks other than 0."""
     series = []
     for k, record in enumerate(steps.steps[:len(steps.results)]):
-        names = out.adopt(write_vtu(out.stage_prefix(f"solution_{k + 1:04d}"), problem,
-                                    steps.at(problem, k)))
-        series.append((record["time"], names))
-    out.adopt([write_pvd(out.stage("solution.pvd"), series)])
-    out.adopt([plot_path(steps.steps, out.stage("reactions.png"), title)])
+        series.append((record["time"], vtu(f"solution_{k + 1:04d}", at(k))))
+    if out is not None:
+        out.adopt([write_pvd(out.stage("solution.pvd"), series)])
+        out.adopt([plot_path(steps.steps, out.stage("reactions.png"), title)])
 
 
 def study(case, levels, degree, p, out, options, start=0):

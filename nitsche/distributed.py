@@ -3,20 +3,27 @@
 Each rank builds its own problem inside nitsche.partition.local (DistributedProblem.build):
 the bases, measures and terms of its own cells only (a METIS partition of each mesh; an
 element belongs to the rank of the cell that owns it), so the set-up and its memory are
-divided among the ranks; the meshes and the dof vectors stay whole on every rank.
+divided among the ranks; the meshes stay whole on every rank.
 
-- rank r evaluates its share J_h^r, grad J_h^r and the element Hessians with the same
-  compiled kernels (its problem's Assembler);
-- J_h = sum_r J_h^r and grad J_h = sum_r grad J_h^r are reduced on rank 0 and broadcast,
-  so that every rank holds the same bits and takes the same decisions;
+- a free dof is owned by the lowest rank among the elements that hold it; the free dofs a
+  rank's elements hold are its owned dofs and its ghosts;
+- the free vectors of Newton's method (x's free part, the gradient, the step, A v) are, on
+  each rank, valid on its held dofs (arrays of the serial length, other entries unused):
+  the gradient is summed by a PETSc scatter that adds the ghosts' values to their owners'
+  and sends the sums back (Layout.assembled), the step and A v are scattered from the PETSc
+  vector to the held dofs (Layout.held_values); norms and dot products sum the owned
+  entries over the ranks (newton.norm, newton.dot), J_h is summed; so only scalars, the
+  ghosts' values and the fixed dofs' gradient entries (the reactions) travel, and every
+  rank holds the same bits of every number it decides on;
 - the Hessian on the free dofs is a PETSc AIJ matrix: its COO pattern (each rank's
   free-free entries, those of rows another rank owns included) is set once per mesh, its
-  values each step; a free dof is owned by the lowest rank among the elements that hold it;
-- the Newton systems are solved by a PETSc KSP, the step gathered on every rank;
-- the constraint report is that of the serial engine on the ranks' values gathered.
+  values each step; the Newton systems are solved by a PETSc KSP;
+- the whole free vector is all-gathered for the result (once per solve) and inside the
+  minimum check (LOBPCG on replicated vectors); the constraint report is that of the serial
+  engine on the ranks' values gathered.
 
-Newton itself is nitsche.newton.newton, unchanged: the same stopping test, line search and
-result; `ranks` is R.
+Newton itself is nitsche.newton.newton, unchanged but for the norms and dot products it
+asks of the problem: the same stopping test, line search and result; `ranks` is R.
 """
 import os
 
@@ -83,6 +90,7 @@ class DistributedProblem:
                               for k, v in local.alpha0_limits.items()}
         self.elements = self.comm.allgather([t.nel for t in local.assembler.terms])  # per rank, per term
         self.assembler = SummedAssembler(self)
+        self.summed_numbers = 0  # numbers reduced on rank 0 and broadcast (the O(N) traffic)
         self.layout = Layout(self)
         self.matrix = self.layout.matrix()
         self.off_rank_entries = self.comm.allreduce(self.layout.off_rank)
@@ -105,17 +113,35 @@ class DistributedProblem:
         """sum over ranks of a (a number or an array), reduced on rank 0 and broadcast."""
         from mpi4py import MPI
         a = np.ascontiguousarray(np.atleast_1d(a), dtype=float)
+        self.summed_numbers += a.size
         total = np.empty_like(a)
         self.comm.Reduce(a, total, op=MPI.SUM, root=0)
         self.comm.Bcast(total, root=0)
         return total
+
+    def norm(self, v):
+        """|v| of a free vector (this rank's entries valid on the dofs its elements hold):
+        its owned entries' squares summed over the ranks (newton.norm)."""
+        return float(np.sqrt(self.summed(np.dot(v[self.layout.mine], v[self.layout.mine]))[0]))
+
+    def dot(self, a, b):
+        """a . b of free vectors, over the ranks' owned entries (newton.dot)."""
+        return float(self.summed(np.dot(a[self.layout.mine], b[self.layout.mine]))[0])
+
+    def whole(self, x):
+        """x (valid on the dofs this rank's elements hold) with every free dof's value: an
+        all-gather, for the result and the outputs."""
+        x = np.array(x, dtype=float)
+        x[self.local.free] = self.layout.gather(self.layout.vector(x[self.local.free]))
+        return x
 
     def energy(self, x):
         """J_h(x)."""
         return float(self.summed(self.local.assembler.energy(x))[0])
 
     def gradient(self, x):
-        """The gradient of J_h at x (all dofs)."""
+        """The gradient of J_h at x: on the fixed dofs and the free dofs this rank's
+        elements hold (zero on the other free dofs)."""
         return self.assembler.gradient(x)[1]
 
     def newton_system(self, x):
@@ -135,7 +161,7 @@ class DistributedProblem:
         self.layout.set_values(data)
         step = np.zeros(self.local.ndofs)
         step[self.local.fixed] = d
-        rhs = self.summed(self.local.assembler.matrix(data) @ step)[self.local.free]
+        rhs = self.layout.assembled((self.local.assembler.matrix(data) @ step)[self.local.free])
         x[self.local.free] += solve(self.matrix, -rhs)
         return x
 
@@ -171,20 +197,28 @@ class DistributedProblem:
         'direct' (LU) or 'auto' (as the serial 'auto': AMG in 3D above AMG_THRESHOLD_3D
         unknowns, else direct); PETSc options (-ksp_type ...) override their settings."""
         from .newton import newton
-        return newton(self, x0, solver=KrylovSolver(solver, self), **options)
+        result = newton(self, x0, solver=KrylovSolver(solver, self), **options)
+        result.x = self.whole(result.x)
+        return result
 
 
 class SummedAssembler:
     """The Assembler's evaluations (of all terms or of the given ones) as sums over the
-    ranks of their local assemblies; the Hessian data stays this rank's (on its local
-    pattern)."""
+    ranks of their local assemblies: J summed over the ranks (NaN on every rank where one
+    rank's gradient is not finite), the gradient summed on the dofs this rank's elements
+    hold (free: Layout.assembled; fixed: a reduction of those alone) and zero on the other
+    free dofs; the Hessian data stays this rank's (on its local pattern)."""
 
     def __init__(self, dp):
         self.dp, self.terms = dp, dp.local.assembler.terms
 
     def evaluate(self, x, terms=None, hessian=True):
-        E, g, data = self.dp.local.assembler.evaluate(x, terms, hessian)
-        return float(self.dp.summed(E)[0]), self.dp.summed(g), data
+        local, layout = self.dp.local, self.dp.layout
+        E, g, data = local.assembler.evaluate(x, terms, hessian)
+        total = np.zeros_like(g)
+        total[local.free] = layout.assembled(g[local.free])
+        total[local.fixed] = self.dp.summed(g[local.fixed])
+        return float(self.dp.summed(E if np.all(np.isfinite(g)) else np.nan)[0]), total, data
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, summed over the ranks."""
@@ -218,6 +252,11 @@ class Layout:
         lo, hi = self.start, self.start + self.counts[dp.rank]
         self.off_rank = int(((self.rows < lo) | (self.rows >= hi)).sum())  # rows of other ranks
         self.owner = owner
+        self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
+        self.held = np.flatnonzero(held[problem.free])  # this rank's free dofs: owned and ghosts
+        petsc = np.empty(self.n, np.int64)
+        petsc[self.order] = np.arange(self.n)
+        self.petsc_held = petsc[self.held]
 
     def matrix(self):
         """The PETSc matrix, its pattern set once (values: set_values)."""
@@ -228,7 +267,34 @@ class Layout:
         A.setType(PETSc.Mat.Type.AIJ)
         A.setPreallocationCOO(self.rows.astype(PETSc.IntType), self.cols.astype(PETSc.IntType))
         self.A = A
+        self.ghosted = PETSc.Vec().createSeq(self.held.size, comm=PETSc.COMM_SELF)
+        self.to_held = PETSc.Scatter().create(
+            A.createVecRight(), PETSc.IS().createGeneral(self.petsc_held.astype(PETSc.IntType),
+                                                       comm=PETSc.COMM_SELF), self.ghosted, None)
+        self.sum_vector = A.createVecRight()
         return DistributedMatrix(A, self)
+
+    def held_values(self, x):
+        """The free vector (serial numbering) with the PETSc vector x's values on this
+        rank's held free dofs (owned ones and ghosts: a scatter of the ghosts' values from
+        their owners) and zeros elsewhere."""
+        from petsc4py import PETSc
+        self.to_held.scatter(x, self.ghosted, addv=PETSc.InsertMode.INSERT_VALUES,
+                             mode=PETSc.ScatterMode.FORWARD)
+        out = np.zeros(self.n)
+        out[self.held] = self.ghosted.getArray(readonly=True)
+        return out
+
+    def assembled(self, v):
+        """sum over the ranks of their free vectors v (each nonzero on its held dofs only), on
+        this rank's held dofs: the ghosts' values added to their owners' (a reverse scatter)
+        and sent back, so that every rank holding a dof has the owner's bits."""
+        from petsc4py import PETSc
+        self.ghosted.setArray(np.ascontiguousarray(v[self.held], dtype=PETSc.ScalarType))
+        self.sum_vector.zeroEntries()
+        self.to_held.scatter(self.ghosted, self.sum_vector, addv=PETSc.InsertMode.ADD_VALUES,
+                             mode=PETSc.ScatterMode.REVERSE)
+        return self.held_values(self.sum_vector)
 
     def set_values(self, data):
         """The matrix values from this rank's CSR data (entries of all ranks summed)."""
@@ -246,6 +312,7 @@ class Layout:
         """A PETSc vector as a replicated free vector (serial numbering) on every rank."""
         local = np.ascontiguousarray(x.getArray(readonly=True))
         whole = np.empty(self.n)
+        self.gathered_numbers += self.n
         self.comm.Allgatherv(local, [whole, self.counts])
         out = np.empty(self.n)
         out[self.order] = whole
@@ -253,13 +320,19 @@ class Layout:
 
 
 class DistributedMatrix:
-    """The PETSc Hessian seen by the serial Newton: A @ v and A.diagonal() on replicated
-    free vectors."""
+    """The PETSc Hessian seen by the serial Newton: A @ v on free vectors valid on the held
+    dofs (the product's values there); whole(v) and diagonal() on replicated ones."""
 
     def __init__(self, mat, layout):
         self.mat, self.layout = mat, layout
 
     def __matmul__(self, v):
+        y = self.layout.vector()
+        self.mat.mult(self.layout.vector(v), y)
+        return self.layout.held_values(y)
+
+    def whole(self, v):
+        """A v of a replicated v, replicated (an all-gather: for the minimum check)."""
         y = self.layout.vector()
         self.mat.mult(self.layout.vector(v), y)
         return self.layout.gather(y)
@@ -309,7 +382,11 @@ class KrylovSolver:
 
     def solve(self, A, b, rtol=0.0):
         from petsc4py import PETSc
-        positive_diagonal(A)
+        diagonal = self.dp.layout.A.getDiagonal()
+        i, smallest = diagonal.min()
+        if not (smallest > 0 and np.isfinite(diagonal.sum())):
+            raise IndefiniteHessian(f"diagonal entry {i} (PETSc numbering) of the Newton matrix "
+                                    f"is {smallest:.3g} or one is not finite")
         if self.kind == "gamg":
             self.ksp.setTolerances(rtol=max(rtol, self.rtol))
         self.ksp.setFromOptions()
@@ -324,10 +401,9 @@ class KrylovSolver:
         if reason < 0:
             raise NotSolved(f"PETSc KSP ({self.ksp.getType()}, {self.ksp.getPC().getType()}): "
                             f"{reason_name(reason)}")
-        dx = self.dp.layout.gather(x)
-        if not np.all(np.isfinite(dx)):
+        if not np.isfinite(x.norm()):
             raise IndefiniteHessian("singular Newton matrix")
-        return dx
+        return self.dp.layout.held_values(x)
 
     def is_positive_definite(self, A):
         """As AMGCG's: a positive diagonal, and LOBPCG preconditioned by this solver's
@@ -345,14 +421,16 @@ class KrylovSolver:
             pc.apply(layout.vector(np.ravel(v)), y)
             return layout.gather(y)
         n = layout.n
-        operator = spla.LinearOperator((n, n), matvec=lambda v: A @ np.ravel(v), dtype=float)
+        operator = spla.LinearOperator((n, n), matvec=lambda v: A.whole(np.ravel(v)), dtype=float)
         return bool(lowest_eigenvalue(operator, spla.LinearOperator((n, n), matvec=precondition,
                                                                     dtype=float)) > 0)
 
     def stats(self):
         return dict(ranks=self.dp.ranks, ksp_iterations=list(self.iterations),
                     elements=self.dp.elements, off_rank_entries=self.dp.off_rank_entries,
-                    straddling_constraint_elements=self.dp.straddling)
+                    straddling_constraint_elements=self.dp.straddling,
+                    summed_numbers=self.dp.summed_numbers,
+                    gathered_numbers=self.dp.layout.gathered_numbers)
 
 
 def reason_name(reason):

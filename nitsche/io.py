@@ -61,10 +61,10 @@ def vertex_values(field, u):
     return np.asarray(u[field.dof_basis.nodal_dofs[0, :nv]])
 
 
-def vertex_multiplier(problem, values, mesh):
+def vertex_multiplier(problem, values, mesh, total=None):
     """Average the discrete multiplier of every constraint on `mesh` to its vertices
     ('<name>_pressure'; a frictional constraint's tangential traction as
-    '<name>_tangential_traction')."""
+    '<name>_tangential_traction'); total: see quantities.vertex_average."""
     out = {}
     for c in problem.constraints:
         if c.on.mesh is not mesh:
@@ -72,7 +72,8 @@ def vertex_multiplier(problem, values, mesh):
         v = values[c.name]
         lam = v["multiplier"] if v["multiplier"].ndim == 3 else v["multiplier"][..., None]
         per_element = (lam * v["W"][..., None]).sum(1) / np.maximum(v["W"].sum(1), 1e-300)[:, None]
-        at = [vertex_average(mesh, per_element[:, i], c.on.vertices) for i in range(lam.shape[2])]
+        at = [vertex_average(mesh, per_element[:, i], c.on.vertices, total)
+              for i in range(lam.shape[2])]
         out[f"{c.name}_pressure"] = at[0]
         if len(at) > 1:
             out[f"{c.name}_tangential_traction"] = at[1] if len(at) == 2 else np.stack(at[1:], axis=1)
@@ -103,43 +104,67 @@ def point_values(field, u, mesh):
     return v[0] if comps == 1 else v.T
 
 
-def output_mesh(mesh, fields):
-    """The mesh a VTU is written on: `mesh` where vertex values say everything (P1, Q1),
-    else `mesh` refined once, so that P2 (and Morley, BFS) fields show their curvature."""
-    vertex_only = all(f.is_lagrange and f.ndofs in (f.mesh.nvertices, f.mesh.dim() * f.mesh.nvertices)
-                      for f in fields)
-    return mesh if vertex_only else mesh.refined(1)
+def vertex_only(fields):
+    """Whether vertex values say everything of the fields (P1, Q1); otherwise (P2, Morley,
+    BFS, ...) their VTU is written on the mesh refined once, to show their curvature."""
+    return all(f.is_lagrange and f.ndofs in (f.mesh.nvertices, f.mesh.dim() * f.mesh.nvertices)
+               for f in fields)
 
 
-def write_vtu(path_prefix, problem, x, vertex_data=None):
-    """One .vtu per mesh: point data named after the fields (every element kind), the
-    contact pressure of the constraints on that mesh, and vertex_data {name: (mesh,
-    values at its vertices)} (e.g. declared quantities); cell data alpha0 per constraint."""
-    parts = problem.split(x)
-    values = problem.constraint_values(x)
+def meshes_of(problem):
+    """The meshes of the problem's fields, in the order of the fields."""
     meshes = []
     for f in problem.fields:
         if all(f.mesh is not m for m in meshes):
             meshes.append(f.mesh)
+    return meshes
+
+
+def write_vtu(path_prefix, problem, x, vertex_data=None):
+    """One .vtu per mesh (see mesh_vtu): path_prefix.vtu, or path_prefix_i.vtu for mesh i
+    of several."""
+    values = problem.constraint_values(x)
+    meshes = meshes_of(problem)
     paths = []
     for i, mesh in enumerate(meshes):
-        fields = [f for f in problem.fields if f.mesh is mesh]
-        out_mesh = output_mesh(mesh, fields)
-        data = {f.name: point_values(f, parts[f.name], out_mesh) for f in fields}
-        at_vertices = vertex_multiplier(problem, values, mesh)
-        at_vertices.update({k: v for k, (m, v) in (vertex_data or {}).items() if m is mesh})
-        if out_mesh is not mesh and at_vertices:  # P1 interpolation of the vertex values
-            P = probes(Basis(mesh, mesh.elem()), out_mesh.p)  # vertex values are its dofs
-            at_vertices = {k: P @ v for k, v in at_vertices.items()}
-        data.update(at_vertices)
         path = f"{path_prefix}.vtu" if len(meshes) == 1 else f"{path_prefix}_{i}.vtu"
-        cells = cell_alpha0(problem, mesh)
-        if out_mesh is not mesh and cells:  # each cell of the refined mesh takes its parent's
-            parent = locate(Basis(mesh, mesh.elem()), out_mesh.p[:, out_mesh.t].mean(axis=1))
-            cells = {k: [v[0][parent]] for k, v in cells.items()}
-        out = to_meshio(out_mesh, point_data=data, cell_data=cells)
-        if out.points.shape[1] == 2:  # VTK points are 3D
-            out.points = np.c_[out.points, np.zeros(len(out.points))]
-        out.write(path)
+        mesh_vtu(problem, x, mesh, values, vertex_data).write(path)
         paths.append(path)
     return paths
+
+
+def mesh_vtu(problem, x, mesh, values, vertex_data=None, cells=None, total=None):
+    """The VTU (a meshio mesh) of one mesh of the problem, or of its cells `cells` only (a
+    piece of a parallel VTU): point data named after the fields (every element kind), the
+    contact pressure of the constraints on that mesh (values: problem.constraint_values(x);
+    total: see quantities.vertex_average) and vertex_data {name: (mesh, values at its
+    vertices)} (e.g. declared quantities); cell data alpha0 per constraint."""
+    fields = [f for f in problem.fields if f.mesh is mesh]
+    parts = problem.split(x)
+    at_vertices = vertex_multiplier(problem, values, mesh, total)
+    at_vertices.update({k: v for k, (m, v) in (vertex_data or {}).items() if m is mesh})
+    cell_data = cell_alpha0(problem, mesh)
+    piece, used = mesh, np.arange(mesh.nvertices)
+    if cells is not None:
+        piece, used = mesh.restrict(cells, return_mapping=True, skip_boundaries=True,
+                                    skip_subdomains=True)
+        at_vertices = {k: v[used] for k, v in at_vertices.items()}
+        cell_data = {k: [v[0][cells]] for k, v in cell_data.items()}
+    if vertex_only(fields):
+        out_mesh = piece
+        data = {f.name: vertex_values(f, parts[f.name])[used] for f in fields}
+    else:
+        out_mesh = piece.refined(1)
+        data = {f.name: point_values(f, parts[f.name], out_mesh) for f in fields}
+        linear = Basis(piece, piece.elem())  # vertex values are its dofs
+        if at_vertices:  # P1 interpolation of the vertex values
+            P = probes(linear, out_mesh.p)
+            at_vertices = {k: P @ v for k, v in at_vertices.items()}
+        if cell_data:  # each cell of the refined mesh takes its parent's
+            parent = locate(linear, out_mesh.p[:, out_mesh.t].mean(axis=1))
+            cell_data = {k: [v[0][parent]] for k, v in cell_data.items()}
+    data.update(at_vertices)
+    out = to_meshio(out_mesh, point_data=data, cell_data=cell_data)
+    if out.points.shape[1] == 2:  # VTK points are 3D
+        out.points = np.c_[out.points, np.zeros(len(out.points))]
+    return out

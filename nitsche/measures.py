@@ -167,7 +167,7 @@ class Measure:
     @property
     def vertices(self):
         """Mesh vertices of every measure element, shape (vertices, elements)."""
-        return self.mesh.t if self.kind == "cells" else self.mesh.facets[:, self.facets]
+        return self.mesh.t[:, self.cells] if self.kind == "cells" else self.mesh.facets[:, self.facets]
 
 
 class Cells(Measure):

@@ -25,6 +25,19 @@ UNBOUNDED = ("J_h looks unbounded below or singular (a field or rigid-body mode 
              "limit): add supports, balance the loads, start nearer a minimum (x0) or lower alpha0")
 
 
+def norm(problem, v):
+    """The Euclidean norm of a free vector: problem.norm where the problem has its own (a
+    distributed one sums over its ranks, nitsche.distributed)."""
+    own = getattr(problem, "norm", None)
+    return own(v) if own else np.linalg.norm(v)
+
+
+def dot(problem, a, b):
+    """a . b of free vectors: problem.dot where the problem has its own (see norm)."""
+    own = getattr(problem, "dot", None)
+    return own(a, b) if own else float(a @ b)
+
+
 def energy_search(problem, x, dx, E, res, slope):
     """x + step dx, step = 1, 1/2, ... the first with Armijo's decrease of J_h (or, at the full
     step, J_h flat to round-off and the residual smaller); None if 40 halvings fail."""
@@ -35,7 +48,7 @@ def energy_search(problem, x, dx, E, res, slope):
         if np.isfinite(En) and En <= E + 1e-4 * step * slope + 1e-14 * abs(E):
             return step, xn
         if step == 1.0 and np.isfinite(En) and abs(En - E) <= ENERGY_ROUNDOFF * abs(E) \
-                and np.linalg.norm(problem.gradient(xn)[free]) < res:
+                and norm(problem, problem.gradient(xn)[free]) < res:
             return step, xn  # J_h is flat to round-off here (1/alpha ~ h^-4): judge the step by the residual
         step *= 0.5
     return None
@@ -50,7 +63,7 @@ def residual_search(problem, x, dx, E, res, slope):
     free, xn, step = problem.free, x.copy(), 1.0
     for _ in range(40):
         xn[free] = x[free] + step * dx
-        rn = np.linalg.norm(problem.gradient(xn)[free])
+        rn = norm(problem, problem.gradient(xn)[free])
         if np.isfinite(rn) and rn <= (1 - 1e-4 * step) * res:
             return step, xn
         step *= 0.5
@@ -108,8 +121,8 @@ def residual_scale(problem, x_ref, rtol):
     is the solution (two membranes with d = 0).  None if neither is finite and positive."""
     a = problem.assembler
     grads = [a.gradient(x_ref, [t])[1][problem.free] for t in a.terms]
-    S = sum(np.linalg.norm(g) for g in grads)
-    ref = max(np.linalg.norm(sum(grads)), ROUNDOFF / rtol * S) if grads else 0.0
+    S = sum(norm(problem, g) for g in grads)
+    ref = max(norm(problem, sum(grads)), ROUNDOFF / rtol * S) if grads else 0.0
     return ref if np.isfinite(ref) and ref > 0 else None
 
 
@@ -224,7 +237,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     x_ref[free] = 0.0
     ref = residual_scale(problem, x_ref, rtol)
     if ref is None:  # e.g. a density undefined at zero, or nothing but zeros: scale by x0
-        ref = np.linalg.norm(g0[free]) or 1.0
+        ref = norm(problem, g0[free]) or 1.0
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
     shift, shifts = SHIFT_START, []  # inertia correction: the next shift, and those taken
     for it in range(maxiter + 1):
@@ -237,7 +250,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             reason = (f"J_h or its gradient became non-finite at iteration {it} "
                       f"(largest |x| {np.abs(x).max():.3g}; {problem.non_finite(x)}): {UNBOUNDED}")
             break
-        res = np.linalg.norm(g)
+        res = norm(problem, g)
         residuals.append(res / ref)
         if progress:
             progress(it, res / ref, E)
@@ -255,7 +268,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         convexified = False
         try:
             dx, M = lin.solve(A, -g, rtol=forcing(res / ref, rtol)), A
-            convexified = problem.symmetric and not float(g @ dx) < 0
+            convexified = problem.symmetric and not dot(problem, g, dx) < 0
         except IndefiniteHessian as e:
             if not problem.symmetric:
                 reason = f"the Newton system could not be solved at iteration {it} ({e}): {UNBOUNDED}"
@@ -276,18 +289,18 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
                 break
             shift, shifts = max(SHIFT_START, tau / 10), shifts + [tau]
         timings["solve"] += time.perf_counter() - t
-        solve_residual = np.linalg.norm(M @ dx + g) / res
+        solve_residual = norm(problem, M @ dx + g) / res
         if not solve_residual <= SOLVE_FAILURE:
             reason = (f"the Newton matrix is singular to working precision at iteration {it} "
-                      f"(step {np.linalg.norm(dx):.3g}, relative residual of its solve "
+                      f"(step {norm(problem, dx):.3g}, relative residual of its solve "
                       f"{solve_residual:.2g}): {UNBOUNDED}")
             break
-        slope = float(g @ dx)
+        slope = dot(problem, g, dx)
         if problem.symmetric and not slope < 0:
             reason = f"the Newton direction is not a descent direction at iteration {it}: {UNBOUNDED}"
             break
         if (not convexified and len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
-                and np.linalg.norm(dx) <= STAGNATION_STEP * max(np.linalg.norm(x[free]), 1e-300)):
+                and norm(problem, dx) <= STAGNATION_STEP * max(norm(problem, x[free]), 1e-300)):
             # the residual no longer falls and the step is far below the discretization error:
             # round-off floor (e.g. third-derivative multipliers, alpha ~ h^3, on fine meshes,
             # where J_h itself is only known to ~1e-10 and a line search cannot resolve it)
@@ -296,22 +309,22 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             converged, reason = True, (f"residual stagnated at round-off ({res / ref:.1e}), "
                                        f"Newton step below {STAGNATION_STEP:.0e} of the solution")
             it += 1
-            residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
+            residuals.append(norm(problem, problem.gradient(x)[free]) / ref)
             break
         t = time.perf_counter()
         search = energy_search if problem.symmetric else residual_search
         found = search(problem, x, dx, E, res, slope)
         if found is None:
             reason = (f"the line search found no decrease of {search.merit} at iteration {it} "
-                      f"(Newton step {np.linalg.norm(dx):.3g}): {UNBOUNDED}")
+                      f"(Newton step {norm(problem, dx):.3g}): {UNBOUNDED}")
             timings["line_search"] += time.perf_counter() - t
             break
         timings["line_search"] += time.perf_counter() - t
         step, x = found
-        if not convexified and step == 1.0 and np.linalg.norm(dx) <= 1e-13 * max(np.linalg.norm(x[free]), 1e-300):
+        if not convexified and step == 1.0 and norm(problem, dx) <= 1e-13 * max(norm(problem, x[free]), 1e-300):
             converged, reason = True, "full Newton step below round-off"
             it += 1
-            residuals.append(np.linalg.norm(problem.gradient(x)[free]) / ref)
+            residuals.append(norm(problem, problem.gradient(x)[free]) / ref)
             break
     if shifts and not converged:
         reason += (f" (the Hessian of J_h was not positive definite at {len(shifts)} iterations, "

@@ -25,7 +25,7 @@ import threading
 MANIFEST = ".nitsche-manifest.json"
 LOCK = ".nitsche.lock"
 STAGING = ".nitsche-staging-"
-OUTPUT_SUFFIXES = (".vtu", ".pvd", ".png")                # what nitsche writes ...
+OUTPUT_SUFFIXES = (".vtu", ".pvtu", ".pvd", ".png")       # what nitsche writes ...
 OUTPUT_NAMES = ("result.json", "study.json", "log.txt", "index.md")  # ... besides these
 LAST = ("result.json", "study.json", "index.md")          # renamed in after the rest
 HELD = (signal.SIGINT, signal.SIGTERM)

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .linalg import make_solver
+from .newton import norm
 from .reactions import reactions
 
 COMPONENTS = ("reaction_x", "reaction_y", "reaction_z")
@@ -81,7 +82,7 @@ def predicted(problem, x, before, lin, eps=1e-3):
         problem.set_parameters(**after)
         return x
     def merit(z):  # J_h, or the residual's norm where J_h has residual terms
-        return problem.energy(z) if problem.symmetric else np.linalg.norm(problem.gradient(z)[problem.free])
+        return problem.energy(z) if problem.symmetric else norm(problem, problem.gradient(z)[problem.free])
     with np.errstate(all="ignore"):
         return moved if merit(moved) < merit(x) else x
 

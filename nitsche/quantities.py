@@ -36,11 +36,15 @@ def summary(values, W):
                 mean=float((W * values).sum() / W.sum()))
 
 
-def vertex_average(mesh, per_element, vertices):
-    """Average of element values onto the vertices they touch (vertices: (k, elements))."""
+def vertex_average(mesh, per_element, vertices, total=None):
+    """Average of element values onto the vertices they touch (vertices: (k, elements));
+    total(a), where given, sums the per-vertex sums a over the ranks of a distributed run
+    that hold the elements (nitsche.pvtu)."""
     acc, count = np.zeros(mesh.nvertices), np.zeros(mesh.nvertices)
     np.add.at(acc, vertices, np.broadcast_to(per_element, vertices.shape))
     np.add.at(count, vertices, 1.0)
+    if total is not None:
+        acc, count = total(acc), total(count)
     return np.where(count > 0, acc / np.maximum(count, 1), 0.0)
 
 

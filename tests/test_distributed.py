@@ -1,8 +1,10 @@
 """nitsche.distributed under mpirun: 1, 2 and 3 ranks give the serial energy and Newton
 iterations (obstacle; two-membrane: two fields; elastic-contact: an interface across rank
 boundaries, two meshes; membrane-solid: 3D, CG + GAMG), each rank building the elements of
-its own cells only; `mpirun nitsche run` writes one result.json and one VTU.  Skipped
-without petsc4py / mpirun (installed by `make petsc`)."""
+its own cells only; `mpirun nitsche run` writes one result.json and a .pvtu of one piece
+per rank (together every cell once, with the serial values); the ghosted free vectors
+(gradient, Hessian products, norms) equal the serial ones.  Skipped without petsc4py /
+mpirun (installed by `make petsc`)."""
 import json
 import os
 import shutil
@@ -10,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nitsche import cases
@@ -93,16 +96,141 @@ def test_3d_with_gamg(ranks, reference):
 
 
 def test_mpirun_nitsche_run_writes_one_result(tmp_path):
-    """Rank 0 writes result.json and one VTU; PETSc options reach the KSP."""
+    """Rank 0 writes result.json and the .pvtu, each rank its piece; PETSc options reach
+    the KSP."""
     out = tmp_path / "run"
     text = mpirun(2, "-m", "nitsche.cli", "run", "obstacle", "--level", "2", "--solver", "gamg",
                   "--out", str(out), "-ksp_type", "gmres", "-ksp_view")
     data = json.loads((out / "result.json").read_text())
     assert data["ranks"] == 2 and data["converged"] and data["solver"] == "petsc-gamg"
-    assert sorted(p.suffix for p in out.iterdir() if p.suffix == ".vtu") == [".vtu"]
+    assert sorted(p.suffix for p in out.iterdir() if p.suffix in (".vtu", ".pvtu")) == \
+        [".pvtu", ".vtu", ".vtu"]  # a piece per rank and their collection
     assert text.count("wrote ") == 1  # rank 0 alone reports
     assert "type: gmres" in text  # PETSc options pass through (-ksp_view prints the KSP)
     case = cases.get("obstacle")
     result = solve_nested(case, 2, 1, case.parameters({}))[1]
     assert abs(data["energy"] - result.energy) <= 1e-10 * abs(result.energy)
     assert data["nested_iterations"][-1] == result.iterations
+
+
+def read_pvtu(path):
+    """The pieces of a .pvtu (read with meshio): [(points, cells, point data, cell data)]."""
+    import xml.etree.ElementTree as ET
+    import meshio
+    names = [p.get("Source") for p in ET.parse(path).getroot().iter("Piece")]
+    out = []
+    for name in names:
+        m = meshio.read(path.parent / name)
+        out.append((m.points, m.cells[0].data, m.point_data,
+                    {k: v[0] for k, v in m.cell_data.items()}))
+    return names, out
+
+
+def by_position(points, where):
+    """Row of `points` at each of the coordinates `where` (they must all be found)."""
+    from scipy.spatial import cKDTree
+    d, i = cKDTree(points).query(where)
+    assert d.max() <= 1e-12, d.max()
+    return i
+
+
+@pytest.mark.parametrize("name, level, ranks", [("obstacle", 3, 2), ("elastic-contact", 2, 3)])
+def test_pvtu_pieces_hold_every_cell_once_with_the_serial_values(tmp_path, name, level, ranks):
+    """mpirun nitsche run writes one piece per rank and mesh (no rebuilt whole problem for
+    them) and a .pvtu naming them: together the pieces hold every cell of the serial VTU
+    exactly once, and their point data (the solution, the multiplier averaged to the
+    vertices across the ranks) and cell data (alpha0) are the serial ones; reactions too."""
+    import meshio
+    from nitsche.io import write_vtu
+    from nitsche.reactions import reactions
+    out = tmp_path / "run"
+    mpirun(ranks, "-m", "nitsche.cli", "run", name, "--level", str(level), "--solver", "direct",
+           "--out", str(out))
+    data = json.loads((out / "result.json").read_text())
+    assert data["ranks"] == ranks and data["converged"] and data["whole_problem_outputs"]
+    case = cases.get(name)
+    problem, result = solve_nested(case, level, case.degrees[0], case.parameters({}),
+                                   dict(solver="superlu"))[:2]
+    serial = write_vtu(str(tmp_path / "serial"), problem, result.x)
+    collections = sorted(p for p in out.iterdir() if p.suffix == ".pvtu")
+    assert len(collections) == len(serial)
+    for collection, whole_path in zip(collections, sorted(serial)):
+        names, pieces = read_pvtu(collection)
+        assert len(pieces) == ranks and all((out / n).exists() for n in names)
+        whole = meshio.read(whole_path)
+        centroids = whole.points[whole.cells[0].data].mean(axis=1)
+        seen = np.zeros(len(centroids), int)
+        for points, cells, point_data, cell_data in pieces:
+            rows = by_position(centroids, points[cells].mean(axis=1))
+            np.add.at(seen, rows, 1)
+            at = by_position(whole.points, points)
+            assert set(point_data) == set(whole.point_data)
+            for k, v in point_data.items():
+                scale = max(np.abs(whole.point_data[k]).max(), 1e-300)
+                assert np.abs(v - whole.point_data[k][at]).max() <= 1e-7 * scale, (k, collection)
+            for k, v in cell_data.items():
+                w = whole.cell_data[k][0][rows]
+                assert np.allclose(v, w, rtol=1e-12, atol=0.0, equal_nan=True), k
+        assert (seen == 1).all(), (collection, np.bincount(seen))
+    expected = reactions(problem, result.x)
+    for f, regions in expected.items():
+        for region, R in regions.items():
+            scale = max(np.abs(R).max(), 1e-300)
+            assert np.abs(np.subtract(data["reactions"][f][region], R)).max() <= 1e-7 * scale
+    assert data["errors"].keys() == case.errors(problem, result, case.parameters({})).keys()
+
+
+def test_pieces_only_writes_no_whole_problem_outputs(tmp_path):
+    """--pieces-only: result.json's common keys and the pieces, none of the outputs of the
+    whole problem (solution.png, the case's errors)."""
+    out = tmp_path / "run"
+    mpirun(2, "-m", "nitsche.cli", "run", "obstacle", "--level", "2", "--out", str(out),
+           "--pieces-only")
+    data = json.loads((out / "result.json").read_text())
+    assert data["converged"] and not data["whole_problem_outputs"] and "errors" not in data
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == \
+        ["result.json", "solution.pvtu", "solution_r0.vtu", "solution_r1.vtu"]
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_ghosted_vectors_equal_the_serial_ones(ranks):
+    """On every rank the gradient (free dofs its elements hold, owned and ghosts, and the
+    fixed dofs), the Hessian's product and J_h equal the whole problem's to round-off, the
+    norm and dot product of free vectors too (owned entries, reduced); each rank holds a
+    part of the free dofs, and a gradient evaluation reduces only the fixed dofs' entries
+    and J_h (not the N free ones)."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_ghosts.py"), "obstacle:2",
+                   "elastic-contact:1", "membrane-solid:0")
+    for case in map(json.loads, lines.strip().splitlines()):
+        rows = case["ranks"]
+        assert len(rows) == ranks
+        for r in rows:
+            for k in ("gradient", "gradient_fixed", "newton_gradient", "energy", "product",
+                      "norm", "dot"):
+                assert r[k] <= 1e-13, (case["case"], k, r)
+            assert r["owned"] <= r["held"] < r["free"], (case["case"], r)
+            assert r["summed_per_gradient"] == r["fixed"] + 1, (case["case"], r)
+        assert sum(r["owned"] for r in rows) == rows[0]["free"]
+        assert sum(r["held"] - r["owned"] for r in rows) > 0  # ghosts (rank 0 owns its shared dofs)
+
+
+def test_an_unusable_output_folder_stops_every_rank(tmp_path):
+    """--out naming a file: rank 0 says so before solving and the other ranks stop too
+    (instead of waiting in the solve's first reduction)."""
+    target = tmp_path / "a-file"
+    target.write_text("")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+               OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    out = subprocess.run(["mpirun", "-n", "2", sys.executable, "-m", "nitsche.cli", "run", "obstacle",
+                          "--level", "1", "--out", str(target)], cwd=ROOT, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode != 0 and "is a file, not a folder" in out.stderr, out.stderr
+    assert target.read_text() == ""
+
+
+def test_pieces_only_is_refused_without_mpirun(tmp_path, capsys):
+    from nitsche.cli import main
+    assert main(["run", "obstacle", "--level", "0", "--pieces-only", "--out", str(tmp_path / "o")]) == 2
+    assert "--pieces-only is for runs under mpirun" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
