@@ -3,6 +3,7 @@ and VTK files for ParaView."""
 import json
 import math
 import os
+from dataclasses import replace
 
 from skfem.io.meshio import to_meshio
 import numpy as np
@@ -154,7 +155,8 @@ def mesh_vtu(problem, x, mesh, values, vertex_data=None, cells=None, total=None)
         out_mesh = piece
         data = {f.name: vertex_values(f, parts[f.name])[used] for f in fields}
     else:
-        out_mesh = piece.refined(1)
+        # the named boundaries are not written: left out, so that refining does not warn
+        out_mesh = replace(piece, _boundaries=None, _subdomains=None).refined(1)
         data = {f.name: point_values(f, parts[f.name], out_mesh) for f in fields}
         linear = Basis(piece, piece.elem())  # vertex values are its dofs
         if at_vertices:  # P1 interpolation of the vertex values
