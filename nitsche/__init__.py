@@ -4,6 +4,7 @@ Declare the energy J(u), the constraint g(u) >= 0 (or = 0) and where it acts,
 the multiplier lambda(u) and the scaling alpha = alpha0 h^k / stiffness; the
 library builds J_h, differentiates it with JAX and minimizes it with Newton.
 """
+import logging
 import os
 import warnings
 
@@ -23,6 +24,10 @@ if _cache != "off":
     # an entry another process was still writing reads as truncated; JAX then compiles the
     # kernel itself, so the warning is noise (it would break the one-line error output)
     warnings.filterwarnings("ignore", message="Error reading persistent compilation cache entry")
+
+# scikit-fem notes that it copied a refined mesh's arrays into C order: its own internals,
+# nothing a user can act on, printed once per refinement of a large tetrahedral mesh
+logging.getLogger("skfem.mesh.mesh").addFilter(lambda record: "to C_CONTIGUOUS" not in record.getMessage())
 
 from .fields import Field, history, coordinates  # noqa: E402
 from .measures import cells, facets, interface  # noqa: E402
