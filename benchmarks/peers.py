@@ -487,7 +487,7 @@ def spawn(code, problem, level, alpha0, timeout, spec=None):
     with open(path) as fh:
         out = json.load(fh)
     os.unlink(path)
-    out["wall"] = wall
+    out["wall"], out["cpu"] = wall, ru.ru_utime + ru.ru_stime  # the child's CPU, imports included
     return out
 
 

@@ -54,7 +54,10 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
         engine=None):
     """Solve (see solve) and write the outputs; global_check: also the global alpha0
     limits and the stability ratio (J_h convex if <= 1); with an engine (MPI ranks) the
-    outputs are those of the whole problem, gathered on this rank (0)."""
+    outputs are those of the whole problem, gathered on this rank (0).  result.json's
+    `seconds` is the solve (wall), `output_seconds` what follows it up to result.json
+    (errors, reactions, VTU, figures), `cpu_seconds` the process's CPU time by then
+    (imports included)."""
     t0 = time.perf_counter()
     problem, result, its, failure = solve(case, level, degree, p, options, nested, verbose, engine)
     if engine:
@@ -106,6 +109,7 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     hook = getattr(case.module, "figures", None)  # figures(problem, result, p, folder) -> paths
     if hook:
         out.adopt(hook(problem, result, p, out.staging))
+    data.update(output_seconds=time.perf_counter() - t0 - seconds, cpu_seconds=time.process_time())
     write_json(out.stage("result.json"), data)
     return 0 if data["converged"] else 1
 
