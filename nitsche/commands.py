@@ -61,8 +61,10 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     reduced) and the solution is a .pvtu of the ranks' pieces (nitsche.pvtu); the outputs
     that are the case's own code on a whole problem (its errors, report and figures,
     declared quantities, solution.png, global_check) are computed on the whole problem,
-    which rank 0 then builds, unless whole_outputs is False (they are left out)."""
-    t0 = time.perf_counter()
+    which rank 0 then builds, unless whole_outputs is False (they are left out).
+    result.json's `seconds` is the solve (wall), `output_seconds` what follows it up to
+    result.json (errors, reactions, VTU, figures), `cpu_seconds` the CPU time of both."""
+    t0, c0 = time.perf_counter(), time.process_time()
     problem, result, its, failure = solve(case, level, degree, p, options, nested, verbose, engine)
     seconds = time.perf_counter() - t0
     rank = problem.rank if engine else 0
@@ -103,6 +105,8 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
             return 0 if data["converged"] else 1
         data["whole_problem_outputs"] = whole_outputs
         if not whole_outputs:
+            data.update(output_seconds=time.perf_counter() - t0 - seconds,
+                        cpu_seconds=time.process_time() - c0)
             write_json(out.stage("result.json"), data)
             return 0 if data["converged"] else 1
         problem, result = whole(case, problem, result, degree, p)
@@ -126,6 +130,7 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     hook = getattr(case.module, "figures", None)  # figures(problem, result, p, folder) -> paths
     if hook:
         out.adopt(hook(problem, result, p, out.staging))
+    data.update(output_seconds=time.perf_counter() - t0 - seconds, cpu_seconds=time.process_time() - c0)
     write_json(out.stage("result.json"), data)
     return 0 if data["converged"] else 1
 

@@ -49,9 +49,10 @@ def condition_number(A, dense_limit=DENSE_LIMIT, tol=1e-5):
             lo, hi, method = s[-1], s[0], "dense singular values"
     elif symmetric:
         hi = spla.eigsh(A, k=1, which="LM", tol=tol, v0=start_vector(n), return_eigenvectors=False)[0]
+        inverse = cholesky_inverse(A)
         lo = spla.eigsh(A.tocsc(), k=1, sigma=0.0, which="LM", tol=tol, v0=start_vector(n),
-                        return_eigenvectors=False)[0]
-        method = "ARPACK (shift-invert for the smallest)"
+                        OPinv=inverse, return_eigenvectors=False)[0]
+        method = "ARPACK (shift-invert for the smallest" + (", by a Cholesky factor)" if inverse else ")")
     else:
         hi = spla.svds(A, k=1, which="LM", tol=tol, v0=start_vector(n), return_singular_vectors=False)[0]
         lu = spla.splu(A.tocsc())
@@ -63,6 +64,24 @@ def condition_number(A, dense_limit=DENSE_LIMIT, tol=1e-5):
     lo, hi = float(lo), float(hi)
     cond = abs(hi) / abs(lo) if lo != 0 else np.inf
     return dict(cond=float(cond), lambda_min=lo, lambda_max=hi, method=method, size=int(n))
+
+
+def cholesky_inverse(A):
+    """A^-1 as a LinearOperator applying CHOLMOD's factor of the symmetric A, ordered by
+    AMD (the shift-invert of ARPACK about 0 for the smallest eigenvalue: at 130k unknowns
+    in 2D a fraction of the time and memory of the sparse LU it does otherwise); None when
+    A is not positive definite or scikit-sparse is missing."""
+    try:
+        from sksparse.cholmod import cholesky, CholmodNotPositiveDefiniteError
+    except ImportError:
+        return None
+    try:
+        factor = cholesky(A.tocsc(), ordering_method="amd")
+    except CholmodNotPositiveDefiniteError:
+        return None
+    if not np.all(factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
+        return None
+    return spla.LinearOperator(A.shape, matvec=factor, dtype=float)
 
 
 def jacobian_condition(problem, x, **options):

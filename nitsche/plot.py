@@ -45,9 +45,30 @@ def _vector_panel(fig, ax, f, d):
     ax.set_aspect("equal")
 
 
+def binned_mean(x, y, values, weights, most=300, per_bin=4):
+    """The weighted mean sum(w v) / sum(w) of scattered values in the bins of a grid over
+    their bounding box (square bins, `most` along its longer side, fewer where there are
+    fewer than `per_bin` points per bin on average): (image (rows, columns), NaN in empty
+    bins; extent (left, right, bottom, top)).  A picture of a million points costs one
+    bincount, where drawing them as markers cost seconds each."""
+    x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
+    side = max(x1 - x0, y1 - y0) or 1.0
+    n = int(np.clip(np.sqrt(x.size / per_bin), 1, most))
+    size = side / n
+    shape = (max(int(np.ceil((y1 - y0) / size)), 1), max(int(np.ceil((x1 - x0) / size)), 1))
+    i = np.minimum(((y - y0) / size).astype(int), shape[0] - 1)
+    j = np.minimum(((x - x0) / size).astype(int), shape[1] - 1)
+    k = i * shape[1] + j
+    total = np.bincount(k, weights * values, shape[0] * shape[1])
+    mass = np.bincount(k, weights, shape[0] * shape[1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        image = np.where(mass > 0, total / mass, np.nan).reshape(shape)
+    return image, (x0, x0 + shape[1] * size, y0, y0 + shape[0] * size)
+
+
 def _multiplier_panel(fig, ax, name, v):
     """lambda_N against the coordinate along a contact line (and a frictional constraint's
-    tangential traction), or coloured points on an area."""
+    tangential traction), or its binned mean (binned_mean) on an area."""
     xq = v["x"].reshape(-1, v["x"].shape[-1])
     vector = v["multiplier"].ndim == 3
     lam = (v["multiplier"][..., 0] if vector else v["multiplier"]).ravel()
@@ -64,9 +85,9 @@ def _multiplier_panel(fig, ax, name, v):
         ax.set_ylabel(r"$\lambda_N$")
         ax.grid(alpha=0.3)
     elif xq.shape[1] >= 2:
-        order = np.argsort(lam)
-        sc = ax.scatter(xq[order, 0], xq[order, 1], c=lam[order], s=4, cmap="magma")
-        fig.colorbar(sc, ax=ax, shrink=0.8, label=r"$\lambda_N$")
+        image, extent = binned_mean(xq[:, 0], xq[:, 1], lam, v["W"].ravel())
+        im = ax.imshow(image, origin="lower", extent=extent, cmap="magma", interpolation="nearest")
+        fig.colorbar(im, ax=ax, shrink=0.8, label=r"$\lambda_N$")
         ax.set_aspect("equal")
         ax.set_xlabel("x")
         ax.set_ylabel("y")

@@ -92,6 +92,19 @@ def test_condition_number_dense_and_sparse_agree():
                - 1) < 1e-4
 
 
+def test_condition_number_of_an_indefinite_matrix_without_a_cholesky_factor():
+    n = 400
+    A = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1], format="csr")
+    spd = condition_number(A, dense_limit=10)
+    from nitsche.linalg import HAVE_CHOLMOD
+    assert ("Cholesky" in spd["method"]) == HAVE_CHOLMOD  # shift-invert by CHOLMOD's factor
+    B = A - sp.identity(n, format="csr") * 1.5  # symmetric, indefinite: ARPACK's own LU
+    sparse, dense = condition_number(B, dense_limit=10), condition_number(B, dense_limit=n)
+    assert "Cholesky" not in sparse["method"]
+    assert abs(sparse["cond"] / dense["cond"] - 1) < 1e-4
+    assert abs(sparse["lambda_min"] / dense["lambda_min"] - 1) < 1e-4
+
+
 def test_solution_does_not_depend_on_alpha0_in_stable_range():
     limits = CASE.alpha0_limits(2, params())
     assert 0.008 < limits["contact"] < 0.013      # the P2 cell-Laplacian limit (h = diameter)

@@ -1,8 +1,10 @@
 """A membrane pushed onto a linear elastic cube (paper section 6.2), 3D.
 
-    cube Omega_2 = (0,1)^3, displacement u (trilinear hexahedra), clamped at z = 0;
+    cube Omega_2 = (0,1)^3, displacement u (trilinear hexahedra; cells=tet: linear
+    tetrahedra, six per cube), clamped at z = 0;
     membrane Omega_1 = (0,1)^2 at height z = 1 + d, deflection w (bilinear
-    quadrilaterals, positive up), w = 0 on its boundary, downward pressure `load`;
+    quadrilaterals; cells=tet: linear triangles, two per square), positive up, w = 0 on
+    its boundary, downward pressure `load`;
 
     J = int_{Omega_1} 1/2 mu |grad w|^2 + load w  +  int_{Omega_2} 1/2 sigma(u) : eps(u),
     on the membrane cells:  g = d + w - u_z(x, y, 1) >= 0,
@@ -13,22 +15,23 @@ The cube is evaluated on the membrane's cells lifted to z = 1 (an interface meas
 the meshes are uniform n x n x n and m x m, n = n0 2^level, m = m0 2^level (m0 = n0 by
 default: they match on the top face and the interface uses the membrane's quadrature
 points; otherwise the supermesh of the membrane cells and the cube's top facets).
-lap_h of bilinears on rectangles is 0, so lambda = load and the multiplier term is
-stable for every alpha0.
+lap_h of bilinears on rectangles (and of linears on triangles) is 0, so lambda = load and
+the multiplier term is stable for every alpha0.
 """
 import os
 
 import jax.numpy as jnp
 import numpy as np
-from skfem import MeshHex, MeshQuad, ElementHex1, ElementQuad1, ElementVector, CellBasis
+from skfem import (MeshHex, MeshQuad, MeshTet, MeshTri, ElementHex1, ElementQuad1, ElementTetP1,
+                   ElementTriP1, ElementVector, CellBasis)
 
 import nitsche as ni
-from nitsche.case import Interval, NONNEGATIVE, POISSON, POSITIVE
+from nitsche.case import Interval, NONNEGATIVE, OneOf, POISSON, POSITIVE
 from nitsche.ops import dot, grad, lame, lap, sym_grad
 from nitsche.supermesh import interface_report
 
 NAME = "membrane-solid"
-SUMMARY = "membrane pushed onto an elastic cube, 3D, hexahedra and quadrilaterals (section 6.2)"
+SUMMARY = "membrane pushed onto an elastic cube, 3D, hexahedra and quadrilaterals or tetrahedra and triangles (section 6.2)"
 PARAMETERS = {
     "mu": (1.0, "membrane tension"),
     "load": (1.0, "downward pressure on the membrane"),
@@ -41,9 +44,14 @@ PARAMETERS = {
     "supermesh": (True, "integrate the interface on the supermesh of the membrane and the "
                         "cube's top where the meshes do not match (False: at the membrane's "
                         "quadrature points)"),
+    "cells": ("hex", "'hex': trilinear hexahedra and bilinear quadrilaterals; 'tet': linear "
+                     "tetrahedra and triangles (P1)"),
 }
 RANGES = {"mu": POSITIVE, "d": NONNEGATIVE, "E": POSITIVE, "nu": POISSON, "alpha0": POSITIVE,
-          "n0": Interval(1, closed_lo=True), "m0": Interval(0, closed_lo=True)}
+          "n0": Interval(1, closed_lo=True), "m0": Interval(0, closed_lo=True),
+          "cells": OneOf(("hex", "tet"))}
+SHAPES = {"hex": (MeshHex, MeshQuad, ElementHex1, ElementQuad1, 2),  # solid intorder 2: exact for
+          "tet": (MeshTet, MeshTri, ElementTetP1, ElementTriP1, 1)}   # the stiffness (1: constant strain)
 DEGREES = (1,)
 RATE = {1: 1.0}
 
@@ -57,10 +65,11 @@ def build(level, degree, p):
     n = p.n0 * 2 ** level
     t = np.linspace(0.0, 1.0, n + 1)
     s = np.linspace(0.0, 1.0, (p.m0 or p.n0) * 2 ** level + 1)
-    cube, membrane = MeshHex.init_tensor(t, t, t), MeshQuad.init_tensor(s, s)
-    u = ni.Field("u", cube, ElementVector(ElementHex1()), fixed=lambda x: x[2] < 1e-12,
-                 intorder=2)  # exact for the trilinear stiffness; the default (64 points) is heavy
-    w = ni.Field("w", membrane, ElementQuad1(), fixed="boundary")
+    Solid, Sheet, solid_element, sheet_element, intorder = SHAPES[p.cells]
+    cube, membrane = Solid.init_tensor(t, t, t), Sheet.init_tensor(s, s)
+    u = ni.Field("u", cube, ElementVector(solid_element()), fixed=lambda x: x[2] < 1e-12,
+                 intorder=intorder)  # the default (64 points on hexahedra) is heavy
+    w = ni.Field("w", membrane, sheet_element(), fixed="boundary")
     G, Lam = lame(p.E, p.nu)
 
     def solid(u):
@@ -134,7 +143,7 @@ def figures(problem, result, p, outdir):
     X = (mesh.p.T + scale * d)[mesh.facets[:, facets].T]  # (facets, 4, 3)
     centre = X.mean(axis=1)
     keep = (centre[:, 0] > -1) & (np.abs(mesh.p[2, mesh.facets[:, facets]].mean(0)) > 1e-12)
-    # the quad facet vertices of skfem are ordered around the face
+    # the facet vertices of skfem are ordered around the face (quadrilaterals; triangles)
     fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
     norm = plt.Normalize(s1.min(), s1.max())
@@ -159,7 +168,8 @@ def figures(problem, result, p, outdir):
     fig = plt.figure(figsize=(11, 4.5))
     ax = fig.add_subplot(1, 2, 1)
     import matplotlib.tri as mtri
-    tri = mtri.Triangulation(m.p[0], m.p[1], np.r_[m.t[[0, 1, 2]].T, m.t[[0, 2, 3]].T])
+    tri = mtri.Triangulation(m.p[0], m.p[1], m.t.T if m.t.shape[0] == 3 else
+                             np.r_[m.t[[0, 1, 2]].T, m.t[[0, 2, 3]].T])
     im = ax.tricontourf(tri, wv, levels=30, cmap="viridis")
     fig.colorbar(im, ax=ax, label="membrane deflection w")
     v = problem.constraint_values(result.x)["contact"]

@@ -1,0 +1,31 @@
+"""The solution figure's binned multiplier image (nitsche.plot.binned_mean)."""
+import numpy as np
+
+from nitsche.plot import binned_mean
+
+
+def test_binned_mean_is_the_weighted_mean_per_bin():
+    rng = np.random.default_rng(1)
+    x, y = rng.uniform(0, 2, 4000), rng.uniform(0, 1, 4000)
+    w = rng.uniform(0.5, 1.5, x.size)
+    v = np.where(x < 1, 1.0, 3.0) + y
+    image, (left, right, bottom, top) = binned_mean(x, y, v, w, most=8)
+    size = (x.max() - x.min()) / 8  # square bins, 8 along the longer side
+    assert image.shape == (int(np.ceil((y.max() - y.min()) / size)), 8)
+    assert left == x.min() and bottom == y.min() and right >= x.max() and top >= y.max()
+    i = np.minimum(((y - bottom) / size).astype(int), image.shape[0] - 1)
+    j = np.minimum(((x - left) / size).astype(int), 7)
+    for (r, c) in [(0, 0), (2, 5), (3, 7)]:
+        inside = (i == r) & (j == c)
+        assert np.isclose(image[r, c], (w[inside] * v[inside]).sum() / w[inside].sum(), rtol=1e-14)
+
+
+def test_binned_mean_leaves_empty_bins_blank_and_adapts_to_few_points():
+    x = np.array([0.0, 1.0, 0.0, 1.0])
+    y = np.array([0.0, 0.0, 1.0, 1.0])
+    image, _ = binned_mean(x, y, np.arange(4.0), np.ones(4), per_bin=1)
+    assert image.shape == (2, 2) and np.allclose(image, [[0, 1], [2, 3]])
+    ring = np.linspace(0, 2 * np.pi, 20000, endpoint=False)
+    image, _ = binned_mean(np.cos(ring), np.sin(ring), np.ones(ring.size), np.ones(ring.size))
+    assert np.isnan(image[image.shape[0] // 2, image.shape[1] // 2])  # no point at the centre
+    assert np.nanmax(np.abs(image - 1)) == 0
