@@ -253,6 +253,7 @@ class Layout:
         self.off_rank = int(((self.rows < lo) | (self.rows >= hi)).sum())  # rows of other ranks
         self.owner = owner
         self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
+        self.unshifted = None  # the assembled diagonal while a shift is applied
         self.held = np.flatnonzero(held[problem.free])  # this rank's free dofs: owned and ghosts
         petsc = np.empty(self.n, np.int64)
         petsc[self.order] = np.arange(self.n)
@@ -299,6 +300,7 @@ class Layout:
     def set_values(self, data):
         """The matrix values from this rank's CSR data (entries of all ranks summed)."""
         from petsc4py import PETSc
+        self.unshifted = None  # the diagonal before a shift (DistributedMatrix.shifted)
         self.A.setValuesCOO(np.ascontiguousarray(data[self.keep], dtype=PETSc.ScalarType),
                             addv=PETSc.InsertMode.INSERT_VALUES)
 
@@ -339,6 +341,22 @@ class DistributedMatrix:
 
     def diagonal(self):
         return self.layout.gather(self.mat.getDiagonal())
+
+    def shifted(self, tau):
+        """A + tau D, D = diag|A| floored at 1e-12 of its largest entry (newton.diagonal_shift),
+        in place: the PETSc matrix's diagonal set from the assembled one, which the next
+        assembly (Layout.set_values) restores; the KSP's operator is this matrix."""
+        from petsc4py import PETSc
+        layout = self.layout
+        if layout.unshifted is None:
+            layout.unshifted = self.mat.getDiagonal()
+        D = layout.unshifted.copy()
+        D.abs()
+        D.setArray(np.maximum(D.getArray(readonly=True), 1e-12 * D.max()[1]))
+        M = layout.unshifted.copy()
+        M.axpy(tau, D)
+        self.mat.setDiagonal(M, addv=PETSc.InsertMode.INSERT_VALUES)
+        return self
 
 
 class KrylovSolver:

@@ -73,17 +73,30 @@ def residual_search(problem, x, dx, E, res, slope):
 residual_search.merit = "the residual norm"
 
 
-def convexified_step(lin, A, g, shift):
-    """Inertia correction of an indefinite Newton matrix: dx = -(A + tau D)^-1 g, D = diag|A|
-    (floored at 1e-12 of its largest entry), for the first tau = shift, 10 shift, ... up to
-    SHIFT_MAX with A + tau D positive definite: the Newton step of a convex model of J_h,
-    a descent direction that the line search then shortens.  Returns (dx, tau, A + tau D)."""
+def diagonal_shift(A):
+    """tau -> A + tau D, D = diag|A| floored at 1e-12 of its largest entry; a matrix with its
+    own `shifted` (the distributed one: its PETSc values, in place) shifts itself."""
+    if hasattr(A, "shifted"):
+        return A.shifted
     d = np.abs(A.diagonal())
     D = sp.diags(np.maximum(d, 1e-12 * d.max()), format="csc")
-    tau = shift
-    while tau <= SHIFT_MAX:
+
+    def shifted(tau):
         M = (A + tau * D).tocsc()
         M.sort_indices()
+        return M
+    return shifted
+
+
+def convexified_step(lin, A, g, shift):
+    """Inertia correction of an indefinite Newton matrix: dx = -(A + tau D)^-1 g (see
+    diagonal_shift), for the first tau = shift, 10 shift, ... up to SHIFT_MAX with
+    A + tau D positive definite: the Newton step of a convex model of J_h, a descent
+    direction that the line search then shortens.  Returns (dx, tau, A + tau D)."""
+    shifted = diagonal_shift(A)
+    tau = shift
+    while tau <= SHIFT_MAX:
+        M = shifted(tau)
         if lin.is_positive_definite(M):
             return lin.solve(M, -g, rtol=0.0), tau, M
         tau *= 10.0

@@ -3,7 +3,8 @@ iterations (obstacle; two-membrane: two fields; elastic-contact: an interface ac
 boundaries, two meshes; membrane-solid: 3D, CG + GAMG), each rank building the elements of
 its own cells only; `mpirun nitsche run` writes one result.json and a .pvtu of one piece
 per rank (together every cell once, with the serial values); the ghosted free vectors
-(gradient, Hessian products, norms) equal the serial ones.  Skipped without petsc4py /
+(gradient, Hessian products, norms) equal the serial ones; an indefinite Hessian takes the
+serial convexified steps.  Skipped without petsc4py /
 mpirun (installed by `make petsc`)."""
 import json
 import os
@@ -14,8 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from skfem import ElementTriP1, MeshTri
 
+import nitsche as ni
 from nitsche import cases
+from nitsche.ops import dot, grad
 from nitsche.study import solve_nested
 
 pytest.importorskip("petsc4py", reason="the distributed engine needs petsc4py: make petsc")
@@ -234,3 +238,18 @@ def test_pieces_only_is_refused_without_mpirun(tmp_path, capsys):
     assert main(["run", "obstacle", "--level", "0", "--pieces-only", "--out", str(tmp_path / "o")]) == 2
     assert "--pieces-only is for runs under mpirun" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_an_indefinite_hessian_takes_the_serial_convexified_steps(ranks):
+    """A double well started where its Hessian is negative definite: the distributed matrix
+    is shifted in place (A + tau diag|A|) as the serial one is, and the ranks reach the
+    well u = 1 with the serial iterations and shifts (SuperLU there, PETSc's LU here)."""
+    u = ni.Field("u", MeshTri().refined(3), ElementTriP1())
+    serial = ni.minimize(lambda u: (u.value ** 2 - 1) ** 2 + 1e-3 * dot(grad(u), grad(u)), [u],
+                         x0=np.full(u.ndofs, 0.2), solver="superlu")
+    r = json.loads(mpirun(ranks, str(ROOT / "tests" / "mpi_nonconvex.py")).strip().splitlines()[-1])
+    assert r["converged"] and r["ranks"] == ranks, r
+    assert abs(r["low"] - 1) < 1e-10 and abs(r["high"] - 1) < 1e-10, r
+    assert serial.shifts and r["shifts"] == serial.shifts and r["iterations"] == serial.iterations, \
+        (r, serial.shifts, serial.iterations)
