@@ -141,7 +141,7 @@ def build(level, degree, p):
         top = ni.interface(u2, "top", other=u1, pairing="current", onto="lower", intorder=2 * degree + 2,
                            weight=half)
         constraints.append(ni.Coulomb(reverse_gap, lambda u2, n: traction(u2, n, law2),
-                                      ni.Scaling(p.alpha0, h_power=1, stiffness=p.E), top, friction=p.F, theta=p.theta, name="contact_foundation"))
+                                      ni.Scaling(p.alpha0, h_power=1, stiffness=E1), top, friction=p.F, theta=p.theta, name="contact_foundation"))
         fields += [X1, T1]
     return dict(fields=fields, energy=energy, constraints=constraints, parameters={"c": 0.0})
 
