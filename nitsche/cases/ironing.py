@@ -22,6 +22,11 @@ x_s = X + u_1 the slave point, x_m = X_m + u_2(X_m) its closest point on the fou
 nu = rot(F_2 e_x)/|F_2 e_x| the foundation's current normal there, n_s = cof(F_1) N/|.| the
 block's current normal, s = (-n_s,y, n_s,x) its tangent, P_1 N the traction per reference
 length (the slip increment is that of the current pair over the step, backward Euler).
+contact='two-pass' is the unbiased form of Chouly, Mlika and Renard (2018): the block's arc
+and both sides the slave of the foundation's top as above, plus the foundation's top the
+slave of the block's current arc and sides (reverse_gap: the block's normal at the closest
+point, the foundation's traction the multiplier), each pass weighted 1/2, both with
+alpha = alpha0 h / E_block.
 The reactions on the block's top are compared with five published codes (the digitized
 curves of the solids4foam repository).
 """
@@ -48,7 +53,8 @@ PARAMETERS = {
     "depth": (1.0, "the block top's vertical travel (mm), over t = 0..1"),
     "slide": (10.0, "the block top's horizontal travel (mm), over t = 1..2"),
     "end": (1.0, "the normalized time the path ends at: 1 the indentation, 2 with the sliding "
-                 "(which does not converge past t = 1.04 yet without damping: the onset of gross slip)"),
+                 "(which does not converge past t = 1.04 yet without damping, 1.08 with contact=two-pass: "
+                 "the onset of gross slip)"),
     "steps_down": (20, "load steps of the indentation (t = 0..1)"),
     "steps_slide": (50, "load steps of the sliding (t = 1..2)"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h / E_block)"),
