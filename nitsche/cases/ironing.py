@@ -145,7 +145,7 @@ def build(level, degree, p):
     if two_pass:
         X1, T1 = ni.coordinates(u1), ni.facet_tangents(u1)
         top = ni.interface(u2, "top", other=u1, pairing="current", onto="lower", intorder=2 * degree + 2,
-                           weight=half)
+                           weight=half, hysteresis=0.0)
         constraints.append(ni.Coulomb(reverse_gap, lambda u2, n: traction(u2, n, law2),
                                       ni.Scaling(p.alpha0, h_power=1, stiffness=E1), top, friction=p.F, theta=p.theta, name="contact_foundation"))
         fields += [X1, T1]
