@@ -137,7 +137,8 @@ def test_the_damping_is_the_only_imbalance_of_the_reactions(sliding):
 def two_pass():
     """contact='two-pass' (each surface the slave of the other, weight 1/2) on the foundation
     48 x 12 / block 6 x 3, undamped, to t = 1.1 in 0.1 mm slide steps.  The one-pass
-    contact stops at t = 1.0473 on this mesh (docs/finite_deformation.md)."""
+    contact stops at t = 1.0473 on this mesh (docs/finite_deformation.md); this one
+    reaches t = 1.3 without a cut (measured), the gross slip."""
     case = get("ironing")
     p = case.parameters({"nx": "48", "nb": "6", "steps_down": "10", "end": "1.1", "steps_slide": "100",
                          "contact": "two-pass"})
@@ -157,25 +158,28 @@ def test_the_two_pass_sliding_gets_past_the_former_stall_with_balanced_forces(tw
         assert abs(top["reaction_x"] + bottom["reaction_x"]) < 1e-6 * scale, s["time"]
         assert abs(top["reaction_y"] + bottom["reaction_y"]) < 1e-6 * scale, s["time"]
     F = case.module.forces(path.steps)
-    assert F[-1, 1] > 300 and F[-1, 2] > F[F[:, 0] <= 1.0 + 1e-9, 2].max()  # N: pressed and dragged
+    # gross slip from t = 1.05: horizontal over vertical force near F = 0.3 plus the bulge
+    # ahead of the block (published at t = 1.1: 0.31-0.48)
+    ratio = F[F[:, 0] >= 1.05, 2] / F[F[:, 0] >= 1.05, 1]
+    assert ratio.size >= 5 and np.all((ratio > 0.3) & (ratio < 0.45)), ratio
 
 
 def test_the_foundation_pass_is_inactive_away_from_the_block(two_pass):
-    """The foundation's top points beyond the block (their closest point on its arc or a
-    side, or past the sides' open upper ends) have a positive gap and carry nothing; those
-    under the block touch it."""
+    """The foundation's top points more than 0.5 mm beyond the block (their closest point on
+    its arc, a side or a corner) have a positive gap and carry nothing; some of those under
+    the block touch it."""
     case, p, problem, path = two_pass
     x = path.at(problem, len(path.steps) - 1)
     problem.update_pairing(x)
     v = problem.constraint_values(x)["contact_foundation"]
-    u1 = problem.split(x)["u1"]
+    parts = problem.split(x)
     f = problem.by_name["u1"]
-    block_x = f.mesh.p[0] + u1[f.basis.nodal_dofs[0]]
-    X = v["x"][..., 0]  # the reference abscissa of the foundation's top points
-    far = (X < block_x.min() - 0.5) | (X > block_x.max() + 0.5)
-    assert far.sum() > 100 and np.all(v["g"][..., 0][far] > 0.1)
+    block_x = f.mesh.p[0] + parts["u1"][f.basis.nodal_dofs[0]]
+    xs = problem.constraints[1].on.current_points(parts["u2"])[:, 0].reshape(v["g"].shape[:2])
+    far = (xs < block_x.min() - 0.5) | (xs > block_x.max() + 0.5)
+    assert far.sum() > 90 and np.all(v["g"][..., 0][far] > 0.1)
     assert np.all(v["state"][far] == 0) and np.all(v["multiplier"][far] == 0)
-    assert np.sum(v["state"] > 0) >= 6
+    assert np.sum(v["state"] > 0) >= 3
 
 
 def test_the_two_pass_contact_jacobian_against_finite_differences(two_pass):
