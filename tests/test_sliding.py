@@ -24,6 +24,7 @@ def test_closest_points_on_a_polyline_and_their_hysteresis():
     y = np.array([[1.0 + 0.5 * HYSTERESIS, -0.1]])
     assert closest_points(y, a, b)[0].tolist() == [1]
     assert closest_points(y, a, b, previous=np.array([0]))[0].tolist() == [0]
+    assert closest_points(y, a, b, previous=np.array([0]), hysteresis=0.0)[0].tolist() == [1]
     far = np.array([[1.0 + 2 * HYSTERESIS, -0.1]])
     assert closest_points(far, a, b, previous=np.array([0]))[0].tolist() == [1]
 
@@ -196,3 +197,5 @@ def test_current_pairing_needs_the_other_body_and_its_surface():
         ni.interface(u1, "arc", other=u2, pairing="current")
     with pytest.raises(ValueError, match="other="):
         ni.interface(u1, "arc", pairing="current", onto="top")
+    with pytest.raises(ValueError, match="hysteresis"):
+        ni.interface(u1, "arc", other=u2, pairing="current", onto="top", hysteresis=-0.1)
