@@ -53,8 +53,8 @@ PARAMETERS = {
     "depth": (1.0, "the block top's vertical travel (mm), over t = 0..1"),
     "slide": (10.0, "the block top's horizontal travel (mm), over t = 1..2"),
     "end": (1.0, "the normalized time the path ends at: 1 the indentation, 2 with the sliding "
-                 "(which does not converge past t = 1.04 yet without damping, 1.08 with contact=two-pass: "
-                 "the onset of gross slip)"),
+                 "(which needs contact=two-pass: the one-pass contact stops at t = 1.04, the onset of gross "
+                 "slip; the whole path takes about 12 minutes on two cores)"),
     "steps_down": (20, "load steps of the indentation (t = 0..1)"),
     "steps_slide": (50, "load steps of the sliding (t = 1..2)"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h / E_block)"),
