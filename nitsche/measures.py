@@ -514,6 +514,8 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
         if other is None:
             raise ValueError("pairing='current' needs the other body's field: other=...")
         return sliding(field, where, other, onto, intorder=intorder, weight=weight, hysteresis=hysteresis)
+    if hysteresis is not None:
+        raise ValueError("hysteresis applies to pairing='current' only: leave it out or pair 'current'")
     if other is None and pairing == "supermesh":
         raise ValueError("pairing='supermesh' needs the other body's field: other=...")
     on_cells = isinstance(where, str) and where == "cells"

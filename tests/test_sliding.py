@@ -199,3 +199,5 @@ def test_current_pairing_needs_the_other_body_and_its_surface():
         ni.interface(u1, "arc", pairing="current", onto="top")
     with pytest.raises(ValueError, match="hysteresis"):
         ni.interface(u1, "arc", other=u2, pairing="current", onto="top", hysteresis=-0.1)
+    with pytest.raises(ValueError, match="hysteresis applies"):
+        ni.interface(u1, "arc", other=u2, pairing="points", hysteresis=0.0)

@@ -25,8 +25,8 @@ length (the slip increment is that of the current pair over the step, backward E
 contact='two-pass' is the unbiased form of Chouly, Mlika and Renard (2018): the block's arc
 and both sides the slave of the foundation's top as above, plus the foundation's top the
 slave of the block's current arc and sides (reverse_gap: the block's normal at the closest
-point, the foundation's traction the multiplier), each pass weighted 1/2, both with
-alpha = alpha0 h / E_block.
+point, the foundation's traction the multiplier, each point paired with its closest point
+without hysteresis), each pass weighted 1/2, both with alpha = alpha0 h / E_block.
 The reactions on the block's top are compared with five published codes (the digitized
 curves of the solids4foam repository).
 """
@@ -139,15 +139,17 @@ def build(level, degree, p):
     half = (lambda x: 0.5) if two_pass else None
     arc = ni.interface(u1, "lower" if two_pass else "contact", other=u2, pairing="current", onto="top",
                        intorder=2 * degree + 2, weight=half)
-    contact = ni.Coulomb(gap, lambda u1, n: traction(u1, n, law1), ni.Scaling(p.alpha0, h_power=1, stiffness=E1), arc,
-                         friction=p.F, theta=p.theta)
+    scaling = ni.Scaling(p.alpha0, h_power=1, stiffness=E1)
+    contact = ni.Coulomb(gap, lambda u1, n: traction(u1, n, law1), scaling, arc, friction=p.F, theta=p.theta)
     fields, constraints = [u1, u2, u1_old, u2_old, X2], [contact]
     if two_pass:
         X1, T1 = ni.coordinates(u1), ni.facet_tangents(u1)
         top = ni.interface(u2, "top", other=u1, pairing="current", onto="lower", intorder=2 * degree + 2,
                            weight=half, hysteresis=0.0)
-        constraints.append(ni.Coulomb(reverse_gap, lambda u2, n: traction(u2, n, law2),
-                                      ni.Scaling(p.alpha0, h_power=1, stiffness=E1), top, friction=p.F, theta=p.theta, name="contact_foundation"))
+        # hysteresis 0: at the block's convex vertices a kept facet's extended line would
+        # catch the foundation's points (docs/finite_deformation.md)
+        constraints.append(ni.Coulomb(reverse_gap, lambda u2, n: traction(u2, n, law2), scaling, top,
+                                      friction=p.F, theta=p.theta, name="contact_foundation"))
         fields += [X1, T1]
     return dict(fields=fields, energy=energy, constraints=constraints, parameters={"c": 0.0})
 
