@@ -488,7 +488,7 @@ class Interface:
 
 
 def interface(field, where=None, to_other=None, intorder=None, other=None, pairing="auto",
-              reach=None, weight=None, onto=None):
+              reach=None, weight=None, onto=None, hysteresis=None):
     """An interface measure on the body of `field`: its boundary facets `where` (a
     boundary name, a predicate on facet midpoints, or facet indices), or where='cells'
     for all its cells (a membrane lying on another body); the normal n is the outward
@@ -505,14 +505,17 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     'current': each point is paired with the closest point of the other body's current
     boundary `onto` (a boundary name) at every Newton iterate, for large sliding
     (nitsche.sliding: a polyline in 2D; flat triangles or bilinear quadrilaterals in 3D).
-    weight w(x) as for cells."""
+    hysteresis (with 'current'): the share of a facet beyond it within which a point keeps
+    its facet (default nitsche.sliding.HYSTERESIS).  weight w(x) as for cells."""
     if pairing not in ("auto", "supermesh", "points", "current"):
         raise ValueError(f"pairing must be 'auto', 'supermesh', 'points' or 'current', not {pairing!r}")
     if pairing == "current":
         from .sliding import sliding
         if other is None:
             raise ValueError("pairing='current' needs the other body's field: other=...")
-        return sliding(field, where, other, onto, intorder=intorder, weight=weight)
+        return sliding(field, where, other, onto, intorder=intorder, weight=weight, hysteresis=hysteresis)
+    if hysteresis is not None:
+        raise ValueError("hysteresis applies to pairing='current' only: leave it out or pair 'current'")
     if other is None and pairing == "supermesh":
         raise ValueError("pairing='supermesh' needs the other body's field: other=...")
     on_cells = isinstance(where, str) and where == "cells"

@@ -31,17 +31,17 @@ FLAT_FACETED = (ElementTetP1, ElementHex1)  # 3D meshes with flat triangles or b
 HYSTERESIS = 0.25  # a point keeps its segment while its projection lies within this share beyond it
 
 
-def closest_points(x, a, b, previous=None):
+def closest_points(x, a, b, previous=None, hysteresis=HYSTERESIS):
     """For points x (P, 2) and segments a -> b (S, 2): the nearest segment s (P,) and the
     parameter t in [0, 1] of the nearest point a_s + t (b_s - a_s) on it.  previous: the
     points' segments so far, kept while the unclipped projection onto them lies in
-    [-HYSTERESIS, 1 + HYSTERESIS] (so that a point near a vertex does not flip between its
+    [-hysteresis, 1 + hysteresis] (so that a point near a vertex does not flip between its
     two segments from one Newton iterate to the next)."""
     d = b - a
     t = np.einsum("psk,sk->ps", x[:, None, :] - a[None], d) / np.maximum((d * d).sum(1), 1e-300)
     rows = np.arange(len(x))
     keep = np.zeros(len(x), bool) if previous is None else \
-        (t[rows, previous] >= -HYSTERESIS) & (t[rows, previous] <= 1 + HYSTERESIS)
+        (t[rows, previous] >= -hysteresis) & (t[rows, previous] <= 1 + hysteresis)
     t = np.clip(t, 0.0, 1.0)
     gap = x[:, None, :] - (a[None] + t[..., None] * d[None])
     s = np.where(keep, previous if previous is not None else 0, np.argmin((gap * gap).sum(-1), axis=1))
@@ -54,8 +54,9 @@ class Sliding(Interface):
     vectors of the two displacement fields; every quadrature point has its own slot of body
     2's cells, so the tabulations keep their shapes (and the compiled kernels) across pairings."""
 
-    def __init__(self, base, mine, other, onto):
+    def __init__(self, base, mine, other, onto, hysteresis=HYSTERESIS):
         super().__init__(base)
+        self.hysteresis = hysteresis
         if other.mesh.dim() == 3 and other.mesh.elem not in FLAT_FACETED:
             raise ValueError(f"pairing='current' projects onto flat triangles (MeshTet1) and bilinear "
                              f"quadrilaterals (MeshHex1); the other body's {type(other.mesh).__name__} "
@@ -90,7 +91,8 @@ class Sliding(Interface):
         p = self.other.mesh.p
         current = p + u2[vertex_dofs]
         a, b = current[:, self.segments[:, 0]].T, current[:, self.segments[:, 1]].T
-        s, t = closest_points(self.current_points(u1), a, b, getattr(self, "segment", None))
+        s, t = closest_points(self.current_points(u1), a, b, getattr(self, "segment", None),
+                              self.hysteresis)
         self.segment = s
         self.facet, self.eta = s, t[:, None]
         A, B = p[:, self.segments[s, 0]], p[:, self.segments[s, 1]]
@@ -102,11 +104,11 @@ class Sliding(Interface):
     def pair_surface(self, u1, u2):
         """pair() in 3D: the closest points on triangles or bilinear quadrilaterals
         (nitsche.projection), a point keeping its facet while its unclipped projection lies
-        within HYSTERESIS of it."""
+        within the hysteresis of it."""
         p = self.other.mesh.p
         current = (p + u2[self.other.basis.nodal_dofs]).T[self.segments]  # (S, vertices, 3)
         self.facet, self.eta = closest_facets(self.current_points(u1), current,
-                                              getattr(self, "facet", None), HYSTERESIS)
+                                              getattr(self, "facet", None), self.hysteresis)
         N, _ = shape_functions(self.segments.shape[1], self.eta)
         X_m = np.einsum("pi,pik->kp", N, p.T[self.segments[self.facet]])
         self.X_m, self.other_cells = X_m.reshape(3, *self.shape), self.segment_cells[self.facet].reshape(self.shape)
@@ -176,8 +178,13 @@ def facet_tangents(field, name=None):
     return t
 
 
-def sliding(field, where, other, onto, intorder=None, weight=None):
-    """The interface measure of nitsche.measures.interface(..., pairing='current')."""
+def sliding(field, where, other, onto, intorder=None, weight=None, hysteresis=None):
+    """The interface measure of nitsche.measures.interface(..., pairing='current');
+    hysteresis: the share of a facet beyond it within which a point keeps it (default
+    HYSTERESIS; 0 pairs every point with its closest point)."""
     if onto is None:
         raise ValueError("pairing='current' needs the other body's contact surface: onto=<boundary name>")
-    return Sliding(facets(field, where, intorder=intorder, weight=weight), field, other, onto)
+    hysteresis = HYSTERESIS if hysteresis is None else float(hysteresis)
+    if not hysteresis >= 0:
+        raise ValueError(f"hysteresis must be a share of a facet >= 0, not {hysteresis!r}")
+    return Sliding(facets(field, where, intorder=intorder, weight=weight), field, other, onto, hysteresis)
