@@ -32,7 +32,7 @@ def test_closest_points_on_a_polyline_and_their_hysteresis():
 @pytest.fixture(scope="module")
 def ironing():
     case = get("ironing")
-    p = case.parameters({"nx": "24", "nb": "4", "steps_down": "4"})
+    p = case.parameters({"nx": "24", "nb": "4", "steps_down": "4", "contact": "one-pass"})
     problem = case.problem(2, 1, p)
     problem.minimize()  # the rest state: compiles every kernel
     compiled = len(assembly._COMPILED)
@@ -98,6 +98,7 @@ def sliding():
     (measured: steps cut below 1/64 of 0.01)."""
     case = get("ironing")
     p = case.parameters({"nx": "24", "nb": "4", "steps_down": "4", "end": "1.1", "steps_slide": "100",
+                         "contact": "one-pass",
                          "damping": "0.3"})
     problem = case.problem(2, 1, p)
     path = ni.path(problem, **case.module.path(problem, p), quiet=True)

@@ -53,8 +53,8 @@ PARAMETERS = {
     "depth": (1.0, "the block top's vertical travel (mm), over t = 0..1"),
     "slide": (10.0, "the block top's horizontal travel (mm), over t = 1..2"),
     "end": (1.0, "the normalized time the path ends at: 1 the indentation, 2 with the sliding "
-                 "(which needs contact=two-pass: the one-pass contact stops at t = 1.04, the onset of gross "
-                 "slip; the whole path takes about 12 minutes on two cores)"),
+                 "(with contact=two-pass, the default: the one-pass contact stops at t = 1.04, the onset "
+                 "of gross slip; the whole path takes about 12 minutes on two cores)"),
     "steps_down": (20, "load steps of the indentation (t = 0..1)"),
     "steps_slide": (50, "load steps of the sliding (t = 1..2)"),
     "alpha0": ("auto", "Nitsche parameter (alpha = alpha0 h / E_block)"),
@@ -62,7 +62,7 @@ PARAMETERS = {
     "nx": (120, "foundation cells along its length at level 2, the default (and nx/4 across "
                 "its height); halved or doubled per level below or above"),
     "nb": (12, "block cells along its arc at level 2 (and nb/2 across its height)"),
-    "contact": ("one-pass", "'one-pass': the block's arc and leading side the slave of the foundation's top; "
+    "contact": ("two-pass", "'one-pass': the block's arc and leading side the slave of the foundation's top; "
                             "'two-pass': the unbiased form, each surface (the block's arc and both sides, the "
                             "foundation's top) the slave of the other, each pass weighted 1/2"),
     "damping": (0.0, "diagnostic: numerical damping of the foundation during the sliding (t > 1), "
