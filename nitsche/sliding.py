@@ -28,24 +28,7 @@ from .projection import closest_facets, shape_functions
 
 
 FLAT_FACETED = (ElementTetP1, ElementHex1)  # 3D meshes with flat triangles or bilinear quadrilaterals
-HYSTERESIS = 0.25  # a point keeps its segment while its projection lies within this share beyond it
-
-
-def closest_points(x, a, b, previous=None, hysteresis=HYSTERESIS):
-    """For points x (P, 2) and segments a -> b (S, 2): the nearest segment s (P,) and the
-    parameter t in [0, 1] of the nearest point a_s + t (b_s - a_s) on it.  previous: the
-    points' segments so far, kept while the unclipped projection onto them lies in
-    [-hysteresis, 1 + hysteresis] (so that a point near a vertex does not flip between its
-    two segments from one Newton iterate to the next)."""
-    d = b - a
-    t = np.einsum("psk,sk->ps", x[:, None, :] - a[None], d) / np.maximum((d * d).sum(1), 1e-300)
-    rows = np.arange(len(x))
-    keep = np.zeros(len(x), bool) if previous is None else \
-        (t[rows, previous] >= -hysteresis) & (t[rows, previous] <= 1 + hysteresis)
-    t = np.clip(t, 0.0, 1.0)
-    gap = x[:, None, :] - (a[None] + t[..., None] * d[None])
-    s = np.where(keep, previous if previous is not None else 0, np.argmin((gap * gap).sum(-1), axis=1))
-    return s, t[rows, s]
+HYSTERESIS = 0.25  # a point keeps its facet while its projection lies within this share beyond it
 
 
 class Sliding(Interface):
@@ -84,34 +67,17 @@ class Sliding(Interface):
 
     def pair(self, u1, u2):
         """Pair every point with the closest point of body 2's current surface (u1, u2: the
-        dof vectors of the two fields)."""
-        if self.other.mesh.dim() == 3:
-            return self.pair_surface(u1, u2)
-        vertex_dofs = self.other.basis.nodal_dofs  # (2, vertices): the two components
+        dof vectors of the two fields): segments in 2D, triangles or bilinear quadrilaterals in
+        3D (nitsche.projection), a point keeping its facet while its unclipped projection
+        lies within the hysteresis of it."""
         p = self.other.mesh.p
-        current = p + u2[vertex_dofs]
-        a, b = current[:, self.segments[:, 0]].T, current[:, self.segments[:, 1]].T
-        s, t = closest_points(self.current_points(u1), a, b, getattr(self, "segment", None),
-                              self.hysteresis)
-        self.segment = s
-        self.facet, self.eta = s, t[:, None]
-        A, B = p[:, self.segments[s, 0]], p[:, self.segments[s, 1]]
-        X_m = (A + t * (B - A)).reshape(2, *self.shape)
-        self.X_m, self.other_cells = X_m, self.segment_cells[s].reshape(self.shape)
-        self._other.clear()
-        self.pairings += 1
-
-    def pair_surface(self, u1, u2):
-        """pair() in 3D: the closest points on triangles or bilinear quadrilaterals
-        (nitsche.projection), a point keeping its facet while its unclipped projection lies
-        within the hysteresis of it."""
-        p = self.other.mesh.p
-        current = (p + u2[self.other.basis.nodal_dofs]).T[self.segments]  # (S, vertices, 3)
+        current = (p + u2[self.other.basis.nodal_dofs]).T[self.segments]  # (S, vertices, dim)
         self.facet, self.eta = closest_facets(self.current_points(u1), current,
                                               getattr(self, "facet", None), self.hysteresis)
         N, _ = shape_functions(self.segments.shape[1], self.eta)
         X_m = np.einsum("pi,pik->kp", N, p.T[self.segments[self.facet]])
-        self.X_m, self.other_cells = X_m.reshape(3, *self.shape), self.segment_cells[self.facet].reshape(self.shape)
+        self.X_m = X_m.reshape(p.shape[0], *self.shape)
+        self.other_cells = self.segment_cells[self.facet].reshape(self.shape)
         self._other.clear()
         self.pairings += 1
 
