@@ -19,12 +19,12 @@ F = 0.3, in the current configuration:
     lambda = -(n_s . P_1 N, s . P_1 N),   alpha = alpha0 h / E_block,
 
 x_s = X + u_1 the slave point, x_m = X_m + u_2(X_m) its closest point on the foundation,
-nu = rot(F_2 e_x)/|F_2 e_x| the foundation's current normal there, n_s = cof(F_1) N/|.| the
+nu = surface_normal(F_2 t) the foundation's current normal there (t its facet's tangent), n_s = cof(F_1) N/|.| the
 block's current normal, s = (-n_s,y, n_s,x) its tangent, P_1 N the traction per reference
 length (the slip increment is that of the current pair over the step, backward Euler).
 contact='two-pass' is the unbiased form of Chouly, Mlika and Renard (2018): the block's arc
 and both sides the slave of the foundation's top as above, plus the foundation's top the
-slave of the block's current arc and sides (reverse_gap: the block's normal at the closest
+slave of the block's current arc and sides (slip_gap with the roles swapped: the block's normal at the closest
 point, the foundation's traction the multiplier, each point paired with its closest point
 without hysteresis), each pass weighted 1/2, both with alpha = alpha0 h / E_block.
 The reactions on the block's top are compared with five published codes (the digitized
@@ -115,7 +115,7 @@ def build(level, degree, p):
     mesh1, mesh2 = block(int(p.nb), level), foundation(int(p.nx), level)
     u1 = ni.Field("u1", mesh1, element, fixed={"top": "all"})
     u2 = ni.Field("u2", mesh2, element, fixed={"bottom": "all"})
-    u1_old, u2_old, X2 = ni.history(u1), ni.history(u2), ni.coordinates(u2)
+    u1_old, u2_old, X2, T2 = ni.history(u1), ni.history(u2), ni.coordinates(u2), ni.facet_tangents(u2)
     E1 = p.E * p.stiffer
     law1, law2 = lame(E1, p.nu), lame(p.E, p.nu)
     energy = [ni.Integral(lambda u1: neo_hookean(deformation_gradient(u1), *law1), ni.cells(u1)),
@@ -124,52 +124,47 @@ def build(level, degree, p):
         energy.append(ni.Integral(lambda u2, u2_old, c: c / 2 * dot(u2.value - u2_old.value, u2.value - u2_old.value),
                                   ni.cells(u2)))
 
-    def gap(u1, u2, u1_old, u2_old, X_u2, x, n):
-        tau = deformation_gradient(u2)[:, 0]  # F_2 e_x: the foundation top's current tangent
-        nu = jnp.array([-tau[1], tau[0]]) / jnp.linalg.norm(tau)
-        d = x + u1.value - X_u2.value - u2.value  # x_s - x_m
-        # the closest point moves along the foundation by dxi = d . tau / |tau|^2: zero where
-        # the pairing is current, its derivative the linearization of the projection
-        dxi = dot(d, tau) / dot(tau, tau)
-        moved = (u2.value - u2_old.value) + (u2.grad[:, 0] - u2_old.grad[:, 0]) * dxi
-        s = tangent(current_normal(deformation_gradient(u1), n))
-        return jnp.stack([dot(d, nu), -dot(u1.value - u1_old.value - moved, s)])
-
     two_pass = p.contact == "two-pass"
     half = (lambda x: 0.5) if two_pass else None
     arc = ni.interface(u1, "lower" if two_pass else "contact", other=u2, pairing="current", onto="top",
                        intorder=2 * degree + 2, weight=half)
     scaling = ni.Scaling(p.alpha0, h_power=1, stiffness=E1)
-    contact = ni.Coulomb(gap, lambda u1, n: traction(u1, n, law1), scaling, arc, friction=p.F, theta=p.theta)
-    fields, constraints = [u1, u2, u1_old, u2_old, X2], [contact]
+    contact = ni.Coulomb(lambda u1, u2, u1_old, u2_old, X_u2, T_u2, x, n:
+                         slip_gap(u1, u1_old, u2, u2_old, X_u2, T_u2, x, n),
+                         lambda u1, n: traction(u1, n, law1), scaling, arc, friction=p.F, theta=p.theta)
+    fields, constraints = [u1, u2, u1_old, u2_old, X2, T2], [contact]
     if two_pass:
         X1, T1 = ni.coordinates(u1), ni.facet_tangents(u1)
         top = ni.interface(u2, "top", other=u1, pairing="current", onto="lower", intorder=2 * degree + 2,
                            weight=half, hysteresis=0.0)
         # hysteresis 0: at the block's convex vertices a kept facet's extended line would
         # catch the foundation's points (docs/finite_deformation.md)
-        constraints.append(ni.Coulomb(reverse_gap, lambda u2, n: traction(u2, n, law2), scaling, top,
+        constraints.append(ni.Coulomb(lambda u1, u2, u1_old, u2_old, X_u1, T_u1, x, n:
+                                      slip_gap(u2, u2_old, u1, u1_old, X_u1, T_u1, x, n),
+                                      lambda u2, n: traction(u2, n, law2), scaling, top,
                                       friction=p.F, theta=p.theta, name="contact_foundation"))
         fields += [X1, T1]
     return dict(fields=fields, energy=energy, constraints=constraints, parameters={"c": 0.0})
 
 
-def reverse_gap(u1, u2, u1_old, u2_old, X_u1, T_u1, x, n):
-    """The second pass of contact='two-pass': the foundation's top (x_s = x + u_2) the slave of
-    the block's current surface, x_m = X_m + u_1(X_m),
+def slip_gap(slave, slave_old, master, master_old, X_m, t, x, n):
+    """The gap of a slave point x_s = x + u_s paired with its closest point x_m = X_m + u_m(X_m)
+    on the master's current surface (pairing='current'; one function for both passes of
+    contact='two-pass'):
 
-        g = ((x_s - x_m) . nu,  -((u_2 - u_2old) - (u_1 - u_1old)(X_m + t dxi)) . s),
+        g = ((x_s - x_m) . nu,  -((u_s - u_s,old) - (u_m - u_m,old)(X_m + t dxi)) . s),
 
-    T = F_1 t (t the paired block facet's reference tangent), nu = surface_normal(T) the
-    block's outward normal, dxi = tangential_coordinates(T, x_s - x_m) the closest point's
-    first-order shift, s = tangent(n_s) with n_s the foundation's current normal."""
-    t = T_u1.value
-    T = deformation_gradient(u1) @ t
-    d = x + u2.value - X_u1.value - u1.value
-    shift = t @ tangential_coordinates(T, d)
-    moved = (u1.value - u1_old.value) + (u1.grad - u1_old.grad) @ shift
-    s = tangent(current_normal(deformation_gradient(u2), n))
-    return jnp.stack([dot(d, surface_normal(T)), -dot(u2.value - u2_old.value - moved, s)])
+    T = F_m t (t the paired facet's reference tangent, nitsche.facet_tangents), nu =
+    surface_normal(T) the master's outward normal, dxi = tangential_coordinates(T, x_s - x_m)
+    the closest point's first-order shift (zero where the pairing is current, its derivative
+    the linearization of the projection), s = tangent(n_s) with n_s the slave's current
+    normal (the slip increment of the current pair over the step, backward Euler)."""
+    T = deformation_gradient(master) @ t.value
+    d = x + slave.value - X_m.value - master.value
+    shift = t.value @ tangential_coordinates(T, d)
+    moved = (master.value - master_old.value) + (master.grad - master_old.grad) @ shift
+    s = tangent(current_normal(deformation_gradient(slave), n))
+    return jnp.stack([dot(d, surface_normal(T)), -dot(slave.value - slave_old.value - moved, s)])
 
 
 def traction(u, n, law):
