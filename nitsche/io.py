@@ -14,20 +14,30 @@ from .quantities import vertex_average
 
 
 def write_json(path, data):
-    """Strict JSON (no NaN or Infinity): non-finite numbers are written as null.  Written
-    to a temporary name beside `path` and renamed: `path` is whole or absent."""
+    """Strict JSON (no NaN or Infinity): non-finite numbers are written as null; whole or
+    absent (written_atomically)."""
     text = json.dumps(_plain(data), indent=2, allow_nan=False)
     os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    return written_atomically(path, lambda tmp: write_text(tmp, text))
+
+
+def written_atomically(path, write):
+    """write(tmp) to a temporary name beside `path`, then renamed: `path` is whole or absent
+    (the temporary file is removed if writing fails)."""
     tmp = os.path.join(os.path.dirname(os.path.abspath(path)),
                        f".{os.path.basename(path)}.{os.getpid()}.tmp")
     try:
-        with open(tmp, "w") as fh:
-            fh.write(text)
+        write(tmp)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.remove(tmp)
     return path
+
+
+def write_text(path, text):
+    with open(path, "w") as fh:
+        fh.write(text)
 
 
 def write_pvd(path, series):

@@ -16,7 +16,7 @@ import os
 import numpy as np
 
 from . import partition
-from .io import meshes_of, mesh_vtu, vertex_multiplier
+from .io import meshes_of, mesh_vtu, vertex_multiplier, write_text, written_atomically
 
 VTK_TYPES = {"float64": "Float64", "float32": "Float32", "int64": "Int64", "int32": "Int32",
              "uint8": "UInt8"}
@@ -64,14 +64,10 @@ def write_pieces(prefix, dp, x, staging):
 
 
 def write_atomically(mesh, path):
-    """Write the meshio mesh to path through a temporary name; the error's text, or None."""
-    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp")
+    """Write the meshio mesh to path (io.written_atomically); the error's text, or None."""
     try:
-        mesh.write(tmp, file_format="vtu")
-        os.replace(tmp, path)
+        written_atomically(path, lambda tmp: mesh.write(tmp, file_format="vtu"))
     except OSError as e:
-        if os.path.exists(tmp):
-            os.remove(tmp)
         return f"{path}: {e.strerror or e}"
     return None
 
@@ -90,7 +86,7 @@ def _pdata(tag, arrays):
 
 def write_collection(path, pieces, points, cells):
     """The .pvtu of the pieces (VTU files beside it) with their point and cell arrays
-    [(name, VTK type, components)], through a temporary name."""
+    [(name, VTK type, components)], whole or absent."""
     text = ('<?xml version="1.0"?>\n<VTKFile type="PUnstructuredGrid" version="0.1" '
             'byte_order="LittleEndian">\n  <PUnstructuredGrid GhostLevel="0">\n'
             + _pdata("PPointData", points) + _pdata("PCellData", cells)
@@ -98,8 +94,4 @@ def write_collection(path, pieces, points, cells):
               '    </PPoints>\n'
             + "".join(f'    <Piece Source="{os.path.basename(p)}"/>\n' for p in pieces)
             + "  </PUnstructuredGrid>\n</VTKFile>\n")
-    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp")
-    with open(tmp, "w") as fh:
-        fh.write(text)
-    os.replace(tmp, path)
-    return path
+    return written_atomically(path, lambda tmp: write_text(tmp, text))
