@@ -32,6 +32,7 @@ the quarter's).
 """
 import json
 import os
+from itertools import combinations
 
 import numpy as np
 from skfem import ElementTetP1, ElementTetP2, ElementTriP1, ElementTriP2, ElementVector, MeshTet, MeshTri
@@ -68,39 +69,34 @@ HERTZ_DEPTH = 0.01  # depths d <= HERTZ_DEPTH R count as the small-depth end in 
 AXISYMMETRIC = os.path.join(os.path.dirname(__file__), "data", "indentation_axisymmetric.json")
 
 
-def graded_block(L, grading, h_min):
-    """(0, L) x (-L, 0) refined until every cell's diameter is at most
-    max(grading rho, h_min), rho the distance of its centroid from the origin; boundaries
-    'axis' (r = 0), 'bottom', 'top' and 'side'."""
-    mesh = MeshTri.init_tensor(np.linspace(0, L, 3), np.linspace(-L, 0, 3))
+def graded(mesh, grading, h_min):
+    """mesh refined (red-green) until every cell's diameter is at most max(grading rho,
+    h_min), rho the distance of its centroid from the origin."""
     while True:
         p = mesh.p[:, mesh.t]
         rho = np.linalg.norm(p.mean(axis=1), axis=0)
         diameter = np.max([np.linalg.norm(p[:, i] - p[:, j], axis=0)
-                           for i, j in ((0, 1), (1, 2), (0, 2))], axis=0)
+                           for i, j in combinations(range(p.shape[1]), 2)], axis=0)
         coarse = np.flatnonzero(diameter > np.maximum(grading * rho, h_min))
         if coarse.size == 0:
-            break
+            return mesh
         mesh = mesh.refined(coarse)
+
+
+def graded_block(L, grading, h_min):
+    """(0, L) x (-L, 0) in triangles, graded; boundaries 'axis' (r = 0), 'bottom', 'top' and
+    'side'."""
+    mesh = graded(MeshTri.init_tensor(np.linspace(0, L, 3), np.linspace(-L, 0, 3)), grading, h_min)
     tol = 1e-9 * L
     return mesh.with_boundaries({"axis": lambda x: x[0] < tol, "bottom": lambda x: x[1] < -L + tol,
                                  "top": lambda x: x[1] > -tol, "side": lambda x: x[0] > L - tol})
 
 
 def graded_quarter(L, grading, h_min):
-    """(0, L)^2 x (-L, 0) in tetrahedra refined (red-green) until every cell's diameter is at
-    most max(grading rho, h_min), rho the distance of its centroid from the origin;
-    boundaries 'x0' (x = 0), 'y0' (y = 0), 'bottom', 'top' and 'side' (x = L or y = L)."""
-    mesh = MeshTet.init_tensor(np.linspace(0, L, 3), np.linspace(0, L, 3), np.linspace(-L, 0, 3))
-    while True:
-        p = mesh.p[:, mesh.t]
-        rho = np.linalg.norm(p.mean(axis=1), axis=0)
-        diameter = np.max([np.linalg.norm(p[:, i] - p[:, j], axis=0)
-                           for i in range(4) for j in range(i + 1, 4)], axis=0)
-        coarse = np.flatnonzero(diameter > np.maximum(grading * rho, h_min))
-        if coarse.size == 0:
-            break
-        mesh = mesh.refined(coarse)
+    """(0, L)^2 x (-L, 0) in tetrahedra, graded; boundaries 'x0' (x = 0), 'y0' (y = 0),
+    'bottom', 'top' and 'side' (x = L or y = L)."""
+    mesh = graded(MeshTet.init_tensor(np.linspace(0, L, 3), np.linspace(0, L, 3), np.linspace(-L, 0, 3)),
+                  grading, h_min)
     tol = 1e-9 * L
     return mesh.with_boundaries({"x0": lambda x: x[0] < tol, "y0": lambda x: x[1] < tol,
                                  "bottom": lambda x: x[2] < -L + tol, "top": lambda x: x[2] > -tol,
