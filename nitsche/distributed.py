@@ -122,7 +122,7 @@ class DistributedProblem:
     def norm(self, v):
         """|v| of a free vector (this rank's entries valid on the dofs its elements hold):
         its owned entries' squares summed over the ranks (newton.norm)."""
-        return float(np.sqrt(self.summed(np.dot(v[self.layout.mine], v[self.layout.mine]))[0]))
+        return float(np.sqrt(self.dot(v, v)))
 
     def dot(self, a, b):
         """a . b of free vectors, over the ranks' owned entries (newton.dot)."""
