@@ -14,10 +14,11 @@ import os
 import warnings
 
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 try:
-    from sksparse.cholmod import analyze, CholmodNotPositiveDefiniteError
+    from sksparse.cholmod import analyze, cholesky, CholmodNotPositiveDefiniteError
     HAVE_CHOLMOD = True
 except ImportError:  # pragma: no cover - depends on the machine
     HAVE_CHOLMOD = False
@@ -68,13 +69,13 @@ class Cholmod:
             raise IndefiniteHessian(str(e))
         if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
             raise IndefiniteHessian("the LDL^T factorization has a non-positive pivot")
-        self.factored = A.data.copy()
+        self.factored = A.copy()
         self.factorizations += 1
         self.stale = False
 
     def solve(self, A, b, rtol=0.0):
         A = A.tocsc()
-        if self.factor is not None and np.array_equal(A.data, self.factored):
+        if self.factored is not None and semidefinite_difference(A, self.factored, zero=True):
             return self.factor(b)  # same matrix as the factored one
         if self.factor is not None and rtol > 0 and not self.stale:
             x, its = pcg(A, b, self.factor, rtol, self.reuse_iterations)
@@ -86,10 +87,12 @@ class Cholmod:
         return self.factor(b)
 
     def is_positive_definite(self, A):
-        """Whether A is positive definite: the factor when A is the factored matrix, else a
-        new factorization of A (one numeric factorization: the symbolic analysis is kept)."""
+        """Whether A is positive definite: True without a new factorization when A = F + D,
+        F the factored matrix and D positive semidefinite (then A >= F > 0; see
+        semidefinite_difference), else a new factorization of A (one numeric
+        factorization: the symbolic analysis is kept)."""
         A = A.tocsc()
-        if self.factor is not None and np.array_equal(A.data, self.factored):
+        if self.factored is not None and semidefinite_difference(A, self.factored):
             return True
         try:
             self._factor(A)
@@ -99,6 +102,34 @@ class Cholmod:
 
     def stats(self):
         return dict(factorizations=self.factorizations, cg_iterations=list(self.iterations))
+
+
+def semidefinite_difference(A, F, zero=False):
+    """Whether D = A - F is positive semidefinite (zero: whether D = 0), A and F CSC
+    matrices of one pattern (another pattern: False).  Between Newton matrices of J_h, D is the change of the terms
+    whose state changed (a point entering the active set adds the rank-one
+    alpha (lambda' - g'/alpha)(lambda' - g'/alpha)^T), supported on the rows S of
+    those points' dofs; D_SS + eps I is tested by a Cholesky factorization of that
+    small block, eps = 1e-14 max |diag A|, the accuracy of a Cholesky test of A itself.
+    False without a test when D is not small (more than 1/16 of the entries changed, e.g.
+    a nonlinear energy): factoring A is then the cheaper test."""
+    if not (np.array_equal(A.indptr, F.indptr) and np.array_equal(A.indices, F.indices)):
+        return False
+    changed = np.flatnonzero(A.data != F.data)
+    if changed.size == 0 or zero:
+        return changed.size == 0
+    if changed.size > A.data.size // 16:
+        return False
+    columns = np.repeat(np.arange(A.shape[1]), np.diff(A.indptr))[changed]
+    rows = A.indices[changed]
+    S, local = np.unique(np.concatenate([rows, columns]), return_inverse=True)
+    D = sp.csc_matrix((A.data[changed] - F.data[changed], (local[:rows.size], local[rows.size:])),
+                      shape=(S.size, S.size))
+    eps = 1e-14 * np.abs(A.diagonal()).max()
+    try:
+        return bool(np.all(cholesky(D, beta=eps).D() > 0))
+    except CholmodNotPositiveDefiniteError:
+        return False
 
 
 def pcg(A, b, M, rtol, maxiter):

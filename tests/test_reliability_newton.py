@@ -5,7 +5,7 @@ import scipy.sparse as sp
 from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
-from nitsche.linalg import HAVE_CHOLMOD, Cholmod, IndefiniteHessian
+from nitsche.linalg import HAVE_CHOLMOD, Cholmod, IndefiniteHessian, semidefinite_difference
 from nitsche.ops import dot, grad, lap
 
 SOLVERS = ["cholmod", "superlu", "amg"] if HAVE_CHOLMOD else ["superlu", "amg"]
@@ -97,6 +97,36 @@ def test_positive_definiteness_from_the_factor_or_a_new_factorization():
         A = (F + sp.diags(np.where(np.arange(n) == 20, shift, 0.0))).tocsc()
         assert lin.is_positive_definite(A) == (np.linalg.eigvalsh(A.toarray()).min() > 0)
     assert lin.factorizations == 2  # -0.05: factored; -3.0: the factorization failed
+
+
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_a_semidefinite_change_of_the_factored_matrix_needs_no_factorization():
+    """A = F + D: with D positive semidefinite (rank-one changes, as a point entering the
+    active set makes) A is positive definite without a new factorization; an indefinite D
+    (however small its negative part) is decided by factoring A."""
+    n, rng = 300, np.random.default_rng(4)
+    F = sp.diags([np.full(n - 1, -1.0), np.full(n, 2.001), np.full(n - 1, -1.0)], [-1, 0, 1]).tocsc()
+    F.sort_indices()  # as the engine's patterns
+    lin = Cholmod()
+    lin.solve(F, np.ones(n))
+
+    def changed(signs):  # F + sum_i s_i w_i w_i^T, w_i on 3 neighbouring dofs (F's pattern)
+        D = sp.csc_matrix((n, n))
+        for s in signs:
+            i = rng.integers(1, n - 2)
+            w = sp.csc_matrix((rng.normal(size=2), ([i, i + 1], [0, 0])), shape=(n, 1))
+            D = D + s * (w @ w.T)
+        A = (F + D).tocsc()
+        A.sort_indices()  # as the engine's patterns
+        return A
+    for signs, factors in (([1.0] * 5, 0), ([1.0] * 5 + [-1e-9], 1), ([1.0, -5.0], 1)):
+        before = lin.factorizations
+        A = changed(signs)
+        assert A.nnz == F.nnz  # the same pattern
+        assert lin.is_positive_definite(A) == (np.linalg.eigvalsh(A.toarray()).min() > 0)
+        assert lin.factorizations - before <= factors
+    assert semidefinite_difference(F.copy(), F) and not semidefinite_difference(F - 1e-8 * sp.eye(n, format="csc"), F)
+    assert not semidefinite_difference(sp.eye(n, format="csc"), F)  # another pattern
 
 
 # -- 3. the solution is the initial guess ------------------------------------------------
