@@ -106,7 +106,8 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     pieces = contextlib.nullcontext()
     if engine:
         vtu("solution", result.x)
-        from_pieces = whole_outputs and case.outputs_from_pieces and not global_check
+        from_pieces = problem.comm.bcast(  # rank 0's decision: every rank must take it
+            whole_outputs and case.outputs_from_pieces and not global_check, root=0)
         if rank > 0 and not from_pieces:
             return 0 if data["converged"] else 1
         data.update(whole_problem_outputs=whole_outputs, outputs_from_pieces=from_pieces)

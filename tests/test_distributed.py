@@ -181,7 +181,13 @@ def test_pvtu_pieces_hold_every_cell_once_with_the_serial_values(tmp_path, name,
         for region, R in regions.items():
             scale = max(np.abs(R).max(), 1e-300)
             assert np.abs(np.subtract(data["reactions"][f][region], R)).max() <= 1e-7 * scale
-    assert data["errors"].keys() == case.errors(problem, result, case.parameters({})).keys()
+    # obstacle's errors from the ranks' pieces, elastic-contact's on rank 0's whole problem
+    assert data["outputs_from_pieces"] == case.outputs_from_pieces == (name == "obstacle")
+    errors = case.errors(problem, result, case.parameters({}))
+    assert data["errors"].keys() == errors.keys() and (errors or name != "obstacle")
+    for k, v in errors.items():  # two Newton solves to rtol 1e-10 (measured: 5e-10 at most)
+        assert abs(data["errors"][k] - v) <= 1e-8 * abs(v), (k, data["errors"][k], v)
+    assert (out / "solution.png").stat().st_size > 0
 
 
 def test_pieces_only_writes_no_whole_problem_outputs(tmp_path):
@@ -276,3 +282,22 @@ def test_the_minimum_check_runs_on_distributed_vectors(ranks):
         assert r["converged"] and lowest > 0, r
         assert lowest - 1e-12 * lowest <= estimate <= lowest + 1e-6 * lowest, r
     assert all(r["gathered_numbers"] == 0 for r in runs.values()), runs
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_outputs_from_pieces_equal_the_whole_problems(ranks):
+    """At the same x, the exact errors summed over the ranks' cells equal the whole
+    problem's to 1e-12 (obstacle, signorini: cases that declare OUTPUTS_FROM_PIECES; dirichlet's
+    errors are signorini's code), and so do solution.png's multiplier pictures: the binned image of
+    an area reduced over the ranks and the graph along a contact line gathered."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_outputs.py"), "obstacle:2", "signorini:1")
+    runs = [json.loads(line) for line in lines.strip().splitlines()]
+    assert [r["case"] for r in runs] == ["obstacle", "signorini"]
+    for r in runs:
+        assert cases.get(r["case"]).outputs_from_pieces
+        assert r["errors"].keys() == r["serial_errors"].keys() and r["errors"], r
+        for k, v in r["serial_errors"].items():
+            assert abs(r["errors"][k] - v) <= 1e-12 * abs(v), (r["case"], k, r["errors"][k], v)
+        assert all(d <= 1e-12 for d in r["picture_differences"].values()), r
+    kinds = {k for r in runs for k in r["pictures"].values()}
+    assert kinds == {"area", "line"}, kinds
