@@ -4,7 +4,9 @@ boundaries, two meshes; membrane-solid: 3D, CG + GAMG), each rank building the e
 its own cells only; `mpirun nitsche run` writes one result.json and a .pvtu of one piece
 per rank (together every cell once, with the serial values); the ghosted free vectors
 (gradient, Hessian products, norms) equal the serial ones; an indefinite Hessian takes the
-serial convexified steps.  Skipped without petsc4py /
+serial convexified steps; the minimum check runs on distributed vectors (fails at a saddle,
+passes at minima, gathers nothing); the errors and solution.png's pictures computed from the
+ranks' pieces equal the whole problem's.  Skipped without petsc4py /
 mpirun (installed by `make petsc`)."""
 import json
 import os
