@@ -23,6 +23,14 @@ and optionally
                              a load path solved step by step; `run` writes its steps
                              (result.json `steps`, solution_NNNN.vtu, solution.pvd, a
                              reaction-time plot)
+    OUTPUTS_FROM_PIECES      True where errors, report and figures also work on this rank's
+                             part of a distributed problem (result.x whole): integrals over
+                             its cells reduced over the ranks (nitsche.partition.summed,
+                             e.g. nitsche.norms.exact_errors); under mpirun they are then
+                             computed on every rank from its pieces (figures get the
+                             folder None on ranks other than 0: they write nothing),
+                             otherwise rank 0 rebuilds the whole problem for them
+                             (default False)
     RANGES                   {name: Interval or OneOf}: the physical range of a parameter
     check(p)                 raises ParameterError for combinations RANGES cannot say
                              (e.g. D1 <= D2)
@@ -224,6 +232,13 @@ class Case:
     def errors(self, problem, result, p):
         fn = getattr(self.module, "errors", None)
         return fn(problem, result, p) if fn else {}
+
+    @property
+    def outputs_from_pieces(self):
+        """Whether the case's output hooks work on a rank's part (OUTPUTS_FROM_PIECES) and it
+        declares no quantities (whose vertex values need the whole mesh's cells)."""
+        return bool(getattr(self.module, "OUTPUTS_FROM_PIECES", False)) and \
+            not hasattr(self.module, "quantities")
 
     @property
     def command_name(self):

@@ -272,7 +272,9 @@ def follow(case, args, p, options):
     from . import commands
     try:
         return commands.run(case, args.level, args.degree, p, None, options, nested=args.nested,
-                            engine=distributed.DistributedProblem.build)
+                            global_check=args.global_check,
+                            engine=distributed.DistributedProblem.build,
+                            whole_outputs=not args.pieces_only)
     except OSError:  # a piece could not be written (raised on every rank): rank 0 reports
         return WRITE_FAILED
 

@@ -5,11 +5,13 @@ nitsche.output.OutputFolder, which the caller commits.
 Return codes: 0 converged; 1 Newton did not converge (the outputs say so: a nested run
 writes its finest converged level, a study the levels it finished).
 """
+import contextlib
 import dataclasses
 import os
 import sys
 import time
 
+from . import partition
 from .io import write_json, write_pvd, write_vtu
 from .plot import plot_convergence, plot_path, plot_solution
 from .pvtu import write_pieces
@@ -59,9 +61,11 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     collective, `out` None on the ranks other than 0: result.json's common keys come from
     the ranks (energy, constraint report, reactions from the summed gradient, alpha0 limits
     reduced) and the solution is a .pvtu of the ranks' pieces (nitsche.pvtu); the outputs
-    that are the case's own code on a whole problem (its errors, report and figures,
-    declared quantities, solution.png, global_check) are computed on the whole problem,
-    which rank 0 then builds, unless whole_outputs is False (they are left out).
+    that are the case's own code (its errors, report and figures, solution.png) are
+    computed by every rank on its part where the case says they can be
+    (Case.outputs_from_pieces, and no global_check), otherwise on the whole problem, which
+    rank 0 then builds (so also declared quantities and global_check); whole_outputs False
+    leaves them all out.
     result.json's `seconds` is the solve (wall), `output_seconds` what follows it up to
     result.json (errors, reactions, VTU, figures), `cpu_seconds` the CPU time of both."""
     t0, c0 = time.perf_counter(), time.process_time()
@@ -99,17 +103,35 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
         data.update(steps=steps.steps, step_cuts=steps.cuts, path_seconds=steps.seconds)
         write_path(steps, out, vtu, lambda k: steps.at(problem, k),
                    f"{case.name}, level {reached}, P{degree}")
+    pieces = contextlib.nullcontext()
     if engine:
         vtu("solution", result.x)
-        if rank > 0:
+        from_pieces = problem.comm.bcast(  # rank 0's decision: every rank must take it
+            whole_outputs and case.outputs_from_pieces and not global_check, root=0)
+        if rank > 0 and not from_pieces:
             return 0 if data["converged"] else 1
-        data["whole_problem_outputs"] = whole_outputs
+        data.update(whole_problem_outputs=whole_outputs, outputs_from_pieces=from_pieces)
         if not whole_outputs:
             data.update(output_seconds=time.perf_counter() - t0 - seconds,
                         cpu_seconds=time.process_time() - c0)
             write_json(out.stage("result.json"), data)
             return 0 if data["converged"] else 1
-        problem, result = whole(case, problem, result, degree, p)
+        if from_pieces:  # every rank its part, the hooks' integrals reduced over the ranks
+            pieces = partition.local(problem.comm)
+            problem = problem.local
+            result = dataclasses.replace(result, problem=problem)
+        else:
+            problem, result = whole(case, problem, result, degree, p)
+    with pieces:
+        return outputs(case, problem, result, p, out, data, vtu, global_check, engine,
+                       f"{case.name}, level {reached}, P{degree}", t0 + seconds, c0)
+
+
+def outputs(case, problem, result, p, out, data, vtu, global_check, engine, title, t_solved, c0):
+    """The outputs that are the case's own code (errors, report, declared quantities,
+    figures), solution.png and the global check, and then result.json: on the whole problem
+    (serial, or rank 0 with the problem rebuilt), or, inside nitsche.partition.local, on
+    every rank with its part (out None on ranks other than 0, which write nothing)."""
     errors = case.errors(problem, result, p)
     for k, v in errors.items():
         print(f"  error {k}: {v:.6e}")
@@ -125,12 +147,13 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     data["quantities"] = {k: s for k, (s, _, _) in found.items()}
     if not engine:  # (on MPI ranks the pieces are written: without the declared quantities)
         vtu("solution", result.x, {k: (m, v) for k, (_, m, v) in found.items()})
-    out.adopt([plot_solution(problem, result, out.stage("solution.png"),
-                             f"{case.name}, level {reached}, P{degree}")])
+    png = plot_solution(problem, result, None if out is None else out.stage("solution.png"), title)
     hook = getattr(case.module, "figures", None)  # figures(problem, result, p, folder) -> paths
-    if hook:
-        out.adopt(hook(problem, result, p, out.staging))
-    data.update(output_seconds=time.perf_counter() - t0 - seconds, cpu_seconds=time.process_time() - c0)
+    figures = hook(problem, result, p, None if out is None else out.staging) if hook else []
+    if out is None:
+        return 0 if data["converged"] else 1
+    out.adopt([png] + list(figures))
+    data.update(output_seconds=time.perf_counter() - t_solved, cpu_seconds=time.process_time() - c0)
     write_json(out.stage("result.json"), data)
     return 0 if data["converged"] else 1
 

@@ -18,9 +18,10 @@ divided among the ranks; the meshes stay whole on every rank.
 - the Hessian on the free dofs is a PETSc AIJ matrix: its COO pattern (each rank's
   free-free entries, those of rows another rank owns included) is set once per mesh, its
   values each step; the Newton systems are solved by a PETSc KSP;
-- the whole free vector is all-gathered for the result (once per solve) and inside the
-  minimum check (LOBPCG on replicated vectors); the constraint report is that of the serial
-  engine on the ranks' values gathered.
+- the whole free vector is all-gathered for the result (once per solve); the minimum check
+  at convergence is LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the
+  preconditioner and reductions of a few numbers); the constraint report is that of the
+  serial engine on the ranks' values gathered.
 
 Newton itself is nitsche.newton.newton, unchanged but for the norms and dot products it
 asks of the problem: the same stopping test, line search and result; `ranks` is R.
@@ -28,11 +29,9 @@ asks of the problem: the same stopping test, line search and result; `ranks` is 
 import os
 
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from . import partition
-from .linalg import (AMG_THRESHOLD_3D, IndefiniteHessian, NotSolved, lowest_eigenvalue,
-                     near_nullspace, positive_diagonal)
+from .linalg import AMG_THRESHOLD_3D, IndefiniteHessian, NotSolved, near_nullspace
 from .problem import report_constraints
 
 SOLVERS = ("auto", "gamg", "direct")
@@ -323,7 +322,7 @@ class Layout:
 
 class DistributedMatrix:
     """The PETSc Hessian seen by the serial Newton: A @ v on free vectors valid on the held
-    dofs (the product's values there); whole(v) and diagonal() on replicated ones."""
+    dofs (the product's values there)."""
 
     def __init__(self, mat, layout):
         self.mat, self.layout = mat, layout
@@ -332,15 +331,6 @@ class DistributedMatrix:
         y = self.layout.vector()
         self.mat.mult(self.layout.vector(v), y)
         return self.layout.held_values(y)
-
-    def whole(self, v):
-        """A v of a replicated v, replicated (an all-gather: for the minimum check)."""
-        y = self.layout.vector()
-        self.mat.mult(self.layout.vector(v), y)
-        return self.layout.gather(y)
-
-    def diagonal(self):
-        return self.layout.gather(self.mat.getDiagonal())
 
     def shifted(self, tau):
         """A + tau D, D = diag|A| floored at 1e-12 of its largest entry (newton.diagonal_shift),
@@ -388,6 +378,7 @@ class KrylovSolver:
             ksp.setType("preonly")
             pc.setType("redundant")  # PCREDUNDANT's own solver: LU
         self.ksp, self.kind, self.iterations = ksp, name, []
+        self.minimum_checks = []  # lowest_eigenvalue's estimate and steps, per check
 
     def prepare(self, problem):
         """The near-nullspace of GAMG: rigid-body modes of the vector fields, constants."""
@@ -400,11 +391,9 @@ class KrylovSolver:
 
     def solve(self, A, b, rtol=0.0):
         from petsc4py import PETSc
-        diagonal = self.dp.layout.A.getDiagonal()
-        i, smallest = diagonal.min()
-        if not (smallest > 0 and np.isfinite(diagonal.sum())):
-            raise IndefiniteHessian(f"diagonal entry {i} (PETSc numbering) of the Newton matrix "
-                                    f"is {smallest:.3g} or one is not finite")
+        fault = diagonal_fault(self.dp.layout.A)
+        if fault:
+            raise IndefiniteHessian(fault)
         if self.kind == "gamg":
             self.ksp.setTolerances(rtol=max(rtol, self.rtol))
         self.ksp.setFromOptions()
@@ -424,34 +413,111 @@ class KrylovSolver:
         return self.dp.layout.held_values(x)
 
     def is_positive_definite(self, A):
-        """As AMGCG's: a positive diagonal, and LOBPCG preconditioned by this solver's
-        preconditioner estimates the smallest eigenvalue above 0 (evidence, not proof; with
-        the LU preconditioner it converges at once)."""
-        try:
-            positive_diagonal(A)
-        except IndefiniteHessian:
+        """As AMGCG's, on distributed vectors: a positive diagonal, and LOBPCG preconditioned
+        by this solver's preconditioner (lowest_eigenvalue) estimates the smallest eigenvalue
+        above 0 (evidence, not proof; with the LU preconditioner it converges in 2-5 steps).
+        Its start depends on the serial free index alone (seeded): the same on any number
+        of ranks.  Nothing is gathered."""
+        if diagonal_fault(A.mat):
             return False
         self.ksp.setUp()
-        pc, layout = self.ksp.getPC(), self.dp.layout
-
-        def precondition(v):
-            y = layout.vector()
-            pc.apply(layout.vector(np.ravel(v)), y)
-            return layout.gather(y)
-        n = layout.n
-        operator = spla.LinearOperator((n, n), matvec=lambda v: A.whole(np.ravel(v)), dtype=float)
-        return bool(lowest_eigenvalue(operator, spla.LinearOperator((n, n), matvec=precondition,
-                                                                    dtype=float)) > 0)
+        x = self.dp.layout.vector()
+        x.setArray(seeded(self.dp.layout.mine))
+        theta, steps = lowest_eigenvalue(A.mat, self.ksp.getPC().apply, x)
+        self.minimum_checks.append(dict(estimate=theta, steps=steps))
+        return bool(theta > 0)
 
     def stats(self):
         return dict(ranks=self.dp.ranks, ksp_iterations=list(self.iterations),
                     elements=self.dp.elements, off_rank_entries=self.dp.off_rank_entries,
                     straddling_constraint_elements=self.dp.straddling,
                     summed_numbers=self.dp.summed_numbers,
-                    gathered_numbers=self.dp.layout.gathered_numbers)
+                    gathered_numbers=self.dp.layout.gathered_numbers,
+                    lobpcg_estimates=[c["estimate"] for c in self.minimum_checks],
+                    lobpcg_steps=[c["steps"] for c in self.minimum_checks])
 
 
 def reason_name(reason):
     from petsc4py import PETSc
     names = {v: k for k, v in vars(PETSc.KSP.ConvergedReason).items() if isinstance(v, int)}
     return names.get(reason, str(reason))
+
+
+def diagonal_fault(mat):
+    """Why the PETSc matrix cannot be positive definite (a diagonal entry <= 0 or not
+    finite: a min and a sum reduced over the ranks), or None."""
+    diagonal = mat.getDiagonal()
+    i, smallest = diagonal.min()
+    if smallest > 0 and np.isfinite(diagonal.sum()):
+        return None
+    return (f"diagonal entry {i} (PETSc numbering) of the Newton matrix is {smallest:.3g} "
+            "or one is not finite")
+
+
+def seeded(indices, seed=0):
+    """Numbers in [-1/2, 1/2) that depend on the (global) index alone: SplitMix64 (Steele,
+    Lea, Flood 2014) of seed + index, so a start vector is the same whichever rank holds
+    which entry."""
+    z = (np.asarray(indices, np.uint64) + np.uint64(seed + 1)) * np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)).astype(float) * 2.0 ** -53 - 0.5
+
+
+def lowest_eigenvalue(A, precondition, x, iterations=40, tol=1e-3):
+    """An estimate from above of the smallest eigenvalue of the symmetric PETSc matrix A
+    (nitsche.linalg.lowest_eigenvalue on distributed vectors): LOBPCG with one vector
+    (Knyazev 2001) from the start x.  Each step takes the Ritz pair of the smallest Ritz
+    value theta of A on span{x, w, p}: w = P r the preconditioned residual
+    r = A x - theta x (precondition(r, w); r itself where P r is not finite), p the last
+    step's change of x; the 3 x 3 Gram matrices S^T S and S^T A S are one reduction.  Every
+    theta is a Rayleigh quotient, so theta <= 0 proves A is not positive definite.  Stops
+    there, at |r| <= tol theta (|x| = 1), or after `iterations` steps: (theta, steps)."""
+    from mpi4py import MPI
+    comm = A.getComm().tompi4py()
+    x = x.copy()
+    x.scale(1 / x.norm())
+    Ax, r, w, Aw = A.createVecLeft(), x.duplicate(), x.duplicate(), x.duplicate()
+    A.mult(x, Ax)
+    theta, p, Ap = x.dot(Ax), None, None
+    for step in range(iterations + 1):
+        r.waxpy(-theta, x, Ax)
+        if not theta > 0 or step == iterations or r.norm() <= tol * theta:
+            return float(theta), step
+        precondition(r, w)
+        if not np.isfinite(w.norm()):
+            r.copy(w)
+        w.scale(1 / w.norm())
+        A.mult(w, Aw)
+        S, AS = [x, w] + ([p] if p else []), [Ax, Aw] + ([Ap] if p else [])
+        s = [v.getArray(readonly=True) for v in S]
+        a = [v.getArray(readonly=True) for v in AS]
+        local = np.array([[si @ sj for sj in s] + [si @ aj for aj in a] for si in s])
+        G, H = np.split(comm.allreduce(local, op=MPI.SUM), 2, axis=1)
+        c, theta = ritz(G, (H + H.T) / 2)
+        p_new, Ap_new = x.duplicate(), x.duplicate()
+        for ci, v, Av in zip(c[1:], S[1:], AS[1:]):
+            p_new.axpy(ci, v)
+            Ap_new.axpy(ci, Av)
+        x.scale(c[0])
+        x.axpy(1.0, p_new)
+        Ax.scale(c[0])
+        Ax.axpy(1.0, Ap_new)
+        size = p_new.norm()
+        p, Ap = (p_new, Ap_new) if size > 0 else (None, None)
+        if p:
+            p.scale(1 / size)
+            Ap.scale(1 / size)
+    return float(theta), iterations
+
+
+def ritz(G, H):
+    """The smallest Ritz value theta and its coefficients c (c^T G c = 1) of H c = theta G c,
+    G the Gram matrix of the basis: directions whose Gram eigenvalue is below 1e-12 of the
+    largest (nearly dependent) are dropped."""
+    d, V = np.linalg.eigh(G)
+    keep = d > 1e-12 * d.max()
+    Q = V[:, keep] / np.sqrt(d[keep])
+    mu, Y = np.linalg.eigh(Q.T @ H @ Q)
+    return Q @ Y[:, 0], float(mu[0])

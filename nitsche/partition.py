@@ -9,7 +9,9 @@ rank and no ghost cells are needed: a dof that elements of several ranks share i
 by the reductions and by PETSc's COO assembly (nitsche.distributed).
 
 What stays whole on every rank: the meshes (points, cells, facets, the dof numbering) and
-the dof vectors.  The other body's boundary is thereby the all-gathered contact surface
+the dof vectors.  Quantities integrated over the cells (nitsche.norms.exact_errors, the
+binned pictures of nitsche.plot) are computed inside `local(comm)` on this rank's cells and
+reduced over the ranks (summed, smallest, largest, gathered: identities outside).  The other body's boundary is thereby the all-gathered contact surface
 against which each rank pairs its own interface facets.
 """
 import contextlib
@@ -90,9 +92,42 @@ def owned(mesh, owners):
 def everywhere(flag):
     """flag on every rank (logical and over the partition's ranks; flag outside)."""
     comm = active()
-    return bool(flag) if comm is None else bool(comm.allreduce(bool(flag), op=_and()))
+    return bool(flag) if comm is None else bool(comm.allreduce(bool(flag), op=_op("LAND")))
 
 
-def _and():
+def summed(a):
+    """The array a summed over the partition's ranks (on every rank; a outside): what a
+    quantity integrated over this rank's cells makes over the whole mesh."""
+    return _reduced(a, "SUM")
+
+
+def smallest(a):
+    """The entrywise minimum of the array a over the partition's ranks (a outside)."""
+    return _reduced(a, "MIN")
+
+
+def largest(a):
+    """The entrywise maximum of the array a over the partition's ranks (a outside)."""
+    return _reduced(a, "MAX")
+
+
+def gathered(a):
+    """The arrays a of the partition's ranks concatenated along the first axis, rank after
+    rank, on every rank (a outside): for data of a lower dimension (a contact line)."""
+    comm = active()
+    return a if comm is None else np.concatenate(comm.allgather(np.asarray(a)))
+
+
+def _reduced(a, op):
+    comm = active()
+    a = np.asarray(a, dtype=float)
+    if comm is None:
+        return a
+    out = np.empty_like(a)
+    comm.Allreduce(np.ascontiguousarray(a), out, op=_op(op))
+    return out
+
+
+def _op(name):
     from mpi4py import MPI
-    return MPI.LAND
+    return getattr(MPI, name)

@@ -7,6 +7,7 @@ import matplotlib.tri as mtri  # noqa: E402
 from matplotlib.ticker import NullFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 
+from . import partition  # noqa: E402
 from .io import vertex_values  # noqa: E402
 
 
@@ -50,42 +51,66 @@ def binned_mean(x, y, values, weights, most=300, per_bin=4):
     their bounding box (square bins, `most` along its longer side, fewer where there are
     fewer than `per_bin` points per bin on average): (image (rows, columns), NaN in empty
     bins; extent (left, right, bottom, top)).  A picture of a million points costs one
-    bincount, where drawing them as markers cost seconds each."""
-    x0, x1, y0, y1 = x.min(), x.max(), y.min(), y.max()
+    bincount, where drawing them as markers cost seconds each.  Inside
+    nitsche.partition.local each rank gives its own points: the box, the count and the
+    bins' sums are reduced over the ranks (the same picture on every rank)."""
+    lo = partition.smallest([x.min(initial=np.inf), y.min(initial=np.inf)])
+    hi = partition.largest([x.max(initial=-np.inf), y.max(initial=-np.inf)])
+    (x0, y0), (x1, y1) = lo, hi
+    count = partition.summed(x.size)
     side = max(x1 - x0, y1 - y0) or 1.0
-    n = int(np.clip(np.sqrt(x.size / per_bin), 1, most))
+    n = int(np.clip(np.sqrt(count / per_bin), 1, most))
     size = side / n
     shape = (max(int(np.ceil((y1 - y0) / size)), 1), max(int(np.ceil((x1 - x0) / size)), 1))
     i = np.minimum(((y - y0) / size).astype(int), shape[0] - 1)
     j = np.minimum(((x - x0) / size).astype(int), shape[1] - 1)
     k = i * shape[1] + j
-    total = np.bincount(k, weights * values, shape[0] * shape[1])
-    mass = np.bincount(k, weights, shape[0] * shape[1])
+    total = partition.summed(np.bincount(k, weights * values, shape[0] * shape[1]))
+    mass = partition.summed(np.bincount(k, weights, shape[0] * shape[1]))
     with np.errstate(invalid="ignore", divide="ignore"):
         image = np.where(mass > 0, total / mass, np.nan).reshape(shape)
     return image, (x0, x0 + shape[1] * size, y0, y0 + shape[0] * size)
 
 
-def _multiplier_panel(fig, ax, name, v):
-    """lambda_N against the coordinate along a contact line (and a frictional constraint's
-    tangential traction), or its binned mean (binned_mean) on an area."""
+def multiplier_picture(v):
+    """What a constraint's panel shows of its values v (Problem.constraint_values): along a
+    straight contact line ("line", coordinate axis, its coordinates, lambda_N, the
+    tangential traction or None, sorted along the line), else on an area ("area", the
+    binned mean of lambda_N, extent).  Inside nitsche.partition.local each rank gives its
+    elements' values: the line is gathered, the area binned over the ranks."""
     xq = v["x"].reshape(-1, v["x"].shape[-1])
     vector = v["multiplier"].ndim == 3
     lam = (v["multiplier"][..., 0] if vector else v["multiplier"]).ravel()
-    spread = np.ptp(xq, axis=0)
+    spread = partition.largest(xq.max(axis=0, initial=-np.inf)) \
+        - partition.smallest(xq.min(axis=0, initial=np.inf))
     if xq.shape[1] >= 2 and np.sort(spread)[-2] <= 1e-9 * max(spread.max(), 1e-300):
         axis = int(np.argmax(spread))  # a straight contact line: a graph over it
-        order = np.argsort(xq[:, axis])
-        ax.plot(xq[order, axis], lam[order], ".-", ms=3, label="normal")
+        along, lam = partition.gathered(xq[:, axis]), partition.gathered(lam)
+        order = np.argsort(along, kind="stable")
+        tangential = None
         if vector:
-            tangential = v["multiplier"][..., 1:].reshape(-1, v["multiplier"].shape[2] - 1)
-            ax.plot(xq[order, axis], tangential[order], ".-", ms=3, label="tangential")
+            tangential = partition.gathered(
+                v["multiplier"][..., 1:].reshape(-1, v["multiplier"].shape[2] - 1))[order]
+        return "line", axis, along[order], lam[order], tangential
+    if xq.shape[1] >= 2:
+        return ("area",) + binned_mean(xq[:, 0], xq[:, 1], lam, v["W"].ravel())
+    return ("none",)
+
+
+def _multiplier_panel(fig, ax, name, picture):
+    """lambda_N against the coordinate along a contact line (and a frictional constraint's
+    tangential traction), or its binned mean on an area (multiplier_picture)."""
+    if picture[0] == "line":
+        _, axis, along, lam, tangential = picture
+        ax.plot(along, lam, ".-", ms=3, label="normal")
+        if tangential is not None:
+            ax.plot(along, tangential, ".-", ms=3, label="tangential")
             ax.legend()
         ax.set_xlabel("xyz"[axis])
         ax.set_ylabel(r"$\lambda_N$")
         ax.grid(alpha=0.3)
-    elif xq.shape[1] >= 2:
-        image, extent = binned_mean(xq[:, 0], xq[:, 1], lam, v["W"].ravel())
+    elif picture[0] == "area":
+        _, image, extent = picture
         im = ax.imshow(image, origin="lower", extent=extent, cmap="magma", interpolation="nearest")
         fig.colorbar(im, ax=ax, shrink=0.8, label=r"$\lambda_N$")
         ax.set_aspect("equal")
@@ -96,18 +121,25 @@ def _multiplier_panel(fig, ax, name, v):
 
 def plot_solution(problem, result, path, title=""):
     """One panel per 2D Lagrange field (scalar: its values; vector: the deformed shape) and
-    one per constraint (its discrete multiplier lambda_N at the quadrature points)."""
+    one per constraint (its discrete multiplier lambda_N at the quadrature points).  Inside
+    nitsche.partition.local, problem this rank's part and result.x the whole solution, it
+    is collective (the multipliers are this rank's elements', reduced: multiplier_picture)
+    and only the ranks given a path draw (the fields from the whole mesh and solution,
+    which every rank holds).  Returns the path (None without one)."""
+    values = problem.constraint_values(result.x)
+    pictures = [multiplier_picture(values[c.name]) for c in problem.constraints]
+    if path is None:
+        return None
     parts = problem.split(result.x)
     shown = [(f, vertex_values(f, parts[f.name])) for f in problem.fields
              if f.is_lagrange and f.mesh.dim() == 2]
-    values = problem.constraint_values(result.x)
     n = len(shown) + len(problem.constraints)
     fig, axes = plt.subplots(1, max(n, 1), figsize=(4.8 * max(n, 1), 4.2), squeeze=False)
     axes = axes[0]
     for ax, (f, d) in zip(axes, shown):
         (_scalar_panel if d.ndim == 1 else _vector_panel)(fig, ax, f, d)
-    for ax, c in zip(axes[len(shown):], problem.constraints):
-        _multiplier_panel(fig, ax, c.name, values[c.name])
+    for ax, c, picture in zip(axes[len(shown):], problem.constraints, pictures):
+        _multiplier_panel(fig, ax, c.name, picture)
     for ax in axes[:len(shown)]:
         ax.set_xlabel("x")
         ax.set_ylabel("y")

@@ -4,7 +4,9 @@ boundaries, two meshes; membrane-solid: 3D, CG + GAMG), each rank building the e
 its own cells only; `mpirun nitsche run` writes one result.json and a .pvtu of one piece
 per rank (together every cell once, with the serial values); the ghosted free vectors
 (gradient, Hessian products, norms) equal the serial ones; an indefinite Hessian takes the
-serial convexified steps.  Skipped without petsc4py /
+serial convexified steps; the minimum check runs on distributed vectors (fails at a saddle,
+passes at minima, gathers nothing); the errors and solution.png's pictures computed from the
+ranks' pieces equal the whole problem's.  Skipped without petsc4py /
 mpirun (installed by `make petsc`)."""
 import json
 import os
@@ -181,7 +183,13 @@ def test_pvtu_pieces_hold_every_cell_once_with_the_serial_values(tmp_path, name,
         for region, R in regions.items():
             scale = max(np.abs(R).max(), 1e-300)
             assert np.abs(np.subtract(data["reactions"][f][region], R)).max() <= 1e-7 * scale
-    assert data["errors"].keys() == case.errors(problem, result, case.parameters({})).keys()
+    # obstacle's errors from the ranks' pieces, elastic-contact's on rank 0's whole problem
+    assert data["outputs_from_pieces"] == case.outputs_from_pieces == (name == "obstacle")
+    errors = case.errors(problem, result, case.parameters({}))
+    assert data["errors"].keys() == errors.keys() and (errors or name != "obstacle")
+    for k, v in errors.items():  # two Newton solves to rtol 1e-10 (measured: 5e-10 at most)
+        assert abs(data["errors"][k] - v) <= 1e-8 * abs(v), (k, data["errors"][k], v)
+    assert (out / "solution.png").stat().st_size > 0
 
 
 def test_pieces_only_writes_no_whole_problem_outputs(tmp_path):
@@ -253,3 +261,45 @@ def test_an_indefinite_hessian_takes_the_serial_convexified_steps(ranks):
     assert abs(r["low"] - 1) < 1e-10 and abs(r["high"] - 1) < 1e-10, r
     assert serial.shifts and r["shifts"] == serial.shifts and r["iterations"] == serial.iterations, \
         (r, serial.shifts, serial.iterations)
+
+
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+def test_the_minimum_check_runs_on_distributed_vectors(ranks):
+    """The minimum check at convergence (LOBPCG on the PETSc vectors, nothing gathered):
+    fails at a saddle of a double well whose Hessian has a positive diagonal but a negative
+    eigenvalue (as the serial check does), passes at the well and on obstacle (GAMG), its
+    estimates bounding the smallest eigenvalue from above and within 1e-6 of it there."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_minimum.py"))
+    runs = {r["problem"]: r for r in map(json.loads, lines.strip().splitlines())}
+    u = ni.Field("u", MeshTri().refined(3), ElementTriP1())
+    serial = ni.minimize(lambda u: (u.value ** 2 - 1) ** 2 + dot(grad(u), grad(u)), [u],
+                         x0=np.zeros(u.ndofs), solver="superlu")
+    saddle = runs["saddle"]
+    assert not serial.converged and not saddle["converged"] and saddle["ranks"] == ranks
+    assert saddle["reason"] == serial.reason, (saddle["reason"], serial.reason)
+    assert saddle["lowest"] < 0 and saddle["estimates"] and saddle["estimates"][-1] <= 0, saddle
+    for name in ("well", "obstacle"):
+        r = runs[name]
+        estimate, lowest = r["estimates"][-1], r["lowest"]
+        assert r["converged"] and lowest > 0, r
+        assert lowest - 1e-12 * lowest <= estimate <= lowest + 1e-6 * lowest, r
+    assert all(r["gathered_numbers"] == 0 for r in runs.values()), runs
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_outputs_from_pieces_equal_the_whole_problems(ranks):
+    """At the same x, the exact errors summed over the ranks' cells equal the whole
+    problem's to 1e-12 (obstacle, signorini: cases that declare OUTPUTS_FROM_PIECES; dirichlet's
+    errors are signorini's code), and so do solution.png's multiplier pictures: the binned image of
+    an area reduced over the ranks and the graph along a contact line gathered."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_outputs.py"), "obstacle:2", "signorini:1")
+    runs = [json.loads(line) for line in lines.strip().splitlines()]
+    assert [r["case"] for r in runs] == ["obstacle", "signorini"]
+    for r in runs:
+        assert cases.get(r["case"]).outputs_from_pieces
+        assert r["errors"].keys() == r["serial_errors"].keys() and r["errors"], r
+        for k, v in r["serial_errors"].items():
+            assert abs(r["errors"][k] - v) <= 1e-12 * abs(v), (r["case"], k, r["errors"][k], v)
+        assert all(d <= 1e-12 for d in r["picture_differences"].values()), r
+    kinds = {k for r in runs for k in r["pictures"].values()}
+    assert kinds == {"area", "line"}, kinds

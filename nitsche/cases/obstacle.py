@@ -27,6 +27,7 @@ PARAMETERS = {
 RANGES = {"T": POSITIVE, "alpha0": POSITIVE}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 1.5}
+OUTPUTS_FROM_PIECES = True  # errors: nitsche.norms.exact_errors, summed over the ranks' cells
 
 PAPER = [
     dict(command="run", degree=2, level=4, sets={}, fast=dict(level=2)),

@@ -26,6 +26,7 @@ PARAMETERS = {
 RANGES = {"kappa": POSITIVE, "alpha0": POSITIVE, "method": OneOf(("nitsche", "penalty"))}
 DEGREES = (1, 2)
 RATE = {1: 1.0, 2: 2.0}
+OUTPUTS_FROM_PIECES = True  # errors: nitsche.norms.exact_errors, summed over the ranks' cells
 
 PAPER = [
     dict(command="study", degree=1, levels=6, sets={}, fast=dict(levels=4)),
