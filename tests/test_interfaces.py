@@ -318,3 +318,13 @@ def test_prolongation_to_a_refined_triangle_mesh_by_facet_midpoints(element):
     linear = lambda x: 1 + 2 * x[0] - 3 * x[1]  # every component; P1 reproduces it
     values = moved.prolongate(fc, linear(fc.dof_basis.doflocs))
     assert np.allclose(values, linear(moved.dof_basis.doflocs), atol=1e-13)
+
+
+def test_refined_with_the_fast_facets_is_scikit_fems_refinement():
+    """nitsche.meshes.refined gives the same vertices, cells, facets and t2f as
+    scikit-fem's Mesh.refined (its steps read the facets built by build_facets)."""
+    from nitsche.meshes import refined
+    for base in (MeshTri(), MeshTri.init_symmetric().scaled((4.0, 4.0)), MeshTet()):
+        ours, theirs = refined(base, 3), base.refined(3)
+        for name in ("p", "t", "facets", "t2f"):
+            assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
