@@ -396,17 +396,24 @@ class Term:
             [(s, small) for s in range(whole, max(nel, whole + 1), small)]
 
     def run(self, kind, x, elements=None):
-        """Apply a kernel to all elements (or to the given ones) for the global dof vector x."""
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x;
+        each call's outputs are copied into arrays of all elements as they come (no list
+        of chunk outputs to concatenate: peak memory one copy plus one call's)."""
         us = [x[d] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
-        outs = []
+        outs = None
         for s, chunk in self.blocks(nel):
             kern = self.kernel(kind, chunk)
             sl = slice(s, s + chunk) if elements is None else elements[s: s + chunk]
             Ts = [a if a.shape[0] == 1 else _pad(a[sl], chunk) for a in self.tables]
             rest = [_pad(a[sl], chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            outs.append(kern(*Ts, *rest, self.parameter_data(chunk)))
-        return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
+            got = [np.asarray(o) for o in kern(*Ts, *rest, self.parameter_data(chunk))]
+            if outs is None:
+                outs = [np.empty((nel,) + o.shape[1:], o.dtype) for o in got]
+            n = min(chunk, nel - s)
+            for out, o in zip(outs, got):
+                out[s:s + n] = o[:n]
+        return outs
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
