@@ -206,8 +206,9 @@ class Term:
             self.kept.append(tuple(kept.tolist()))
             self.dofs.append(dofs)
         self.offsets = [offsets[f.name] for f in self.fields]
-        self.field_dofs = [d + o for d, o in zip(self.dofs, self.offsets)]
-        self.global_dofs = np.concatenate(self.field_dofs, axis=1)
+        self.field_dofs = [d if o == 0 else d + o for d, o in zip(self.dofs, self.offsets)]
+        self.global_dofs = self.field_dofs[0] if len(self.field_dofs) == 1 \
+            else np.concatenate(self.field_dofs, axis=1)  # (one field at offset 0: no copies)
         self.W = W
         self.x = np.ascontiguousarray(np.moveaxis(measure.points, 0, -1)) \
             if "x" in names or keep_points else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
