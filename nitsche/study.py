@@ -55,7 +55,7 @@ def nested(make_problem, levels, solve=None, **newton_options):
     for k in levels:
         problem = make_problem(k)
         x0 = prolongate(prev[0], prev[1].x, problem) if prev else None
-        prev = result = None  # the coarser level's memory is not held through this solve
+        prev = result = None  # not held here through this solve (solve_nested drops its own)
         result = solve(problem, x0, minimum_check=check and k == levels[-1], **newton_options)
         yield k, problem, result
         if not result.converged:
