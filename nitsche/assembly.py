@@ -35,7 +35,16 @@ from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
 
-CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small, large
+# Quadrature points per kernel call: small, large.  Each size is a kernel shape to load (or
+# compile) once per process; a nested chain loads the small set on its coarse levels and
+# the large one from the level with a whole large chunk (2D P1, 130k unknowns: level 4),
+# about 0.3-0.45 s CPU of loading per set from the persistent cache (mostly tracing).  One
+# size for all was measured (2026-12-02) and rejected: the large one alone cut the
+# obstacle's chain to 130k from 6.8-7.0 to 5.8 s CPU, but a padded 2^15-point call costs
+# 1-19 ms in 2D P1 and 0.2-1.8 s in 3D (a 3D P1 energy 5.5 us, a P2 contact 54 us a point),
+# so runs on coarse meshes with many Newton steps paid far more (compression --level 0:
+# 4.2 -> 14.5 s CPU; block-friction 3.2 -> 4.1 s); 2^14 alone has the same padding.
+CHUNK_POINTS = (2 ** 10, 2 ** 15)
 _COMPILED = {}
 _ALIVE = {}  # id -> object: an identity key stays valid while the object lives
 compile_seconds = [0.0]  # compilation time spent in this process
@@ -197,8 +206,9 @@ class Term:
             self.kept.append(tuple(kept.tolist()))
             self.dofs.append(dofs)
         self.offsets = [offsets[f.name] for f in self.fields]
-        self.field_dofs = [d + o for d, o in zip(self.dofs, self.offsets)]
-        self.global_dofs = np.concatenate(self.field_dofs, axis=1)
+        self.field_dofs = [d if o == 0 else d + o for d, o in zip(self.dofs, self.offsets)]
+        self.global_dofs = self.field_dofs[0] if len(self.field_dofs) == 1 \
+            else np.concatenate(self.field_dofs, axis=1)  # (one field at offset 0: no copies)
         self.W = W
         self.x = np.ascontiguousarray(np.moveaxis(measure.points, 0, -1)) \
             if "x" in names or keep_points else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
@@ -396,17 +406,24 @@ class Term:
             [(s, small) for s in range(whole, max(nel, whole + 1), small)]
 
     def run(self, kind, x, elements=None):
-        """Apply a kernel to all elements (or to the given ones) for the global dof vector x."""
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x;
+        each call's outputs are copied into arrays of all elements as they come (no list
+        of chunk outputs to concatenate: peak memory one copy plus one call's)."""
         us = [x[d] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
-        outs = []
+        outs = None
         for s, chunk in self.blocks(nel):
             kern = self.kernel(kind, chunk)
             sl = slice(s, s + chunk) if elements is None else elements[s: s + chunk]
             Ts = [a if a.shape[0] == 1 else _pad(a[sl], chunk) for a in self.tables]
             rest = [_pad(a[sl], chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            outs.append(kern(*Ts, *rest, self.parameter_data(chunk)))
-        return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
+            got = [np.asarray(o) for o in kern(*Ts, *rest, self.parameter_data(chunk))]
+            if outs is None:
+                outs = [np.empty((nel,) + o.shape[1:], o.dtype) for o in got]
+            n = min(chunk, nel - s)
+            for out, o in zip(outs, got):
+                out[s:s + n] = o[:n]
+        return outs
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):

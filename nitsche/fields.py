@@ -2,7 +2,7 @@
 import weakref
 
 import numpy as np
-from skfem import Basis, ElementVector
+from skfem import Basis, ElementTriP1, ElementVector
 from skfem.quadrature import get_quadrature
 from skfem.element import ElementH1
 
@@ -172,11 +172,34 @@ class Field:
         extrapolation of the nearest coarse cell)."""
         if not (self.is_lagrange and coarse.is_lagrange):
             return self._prolongate_by_dofs(coarse, u)
+        pairs = self._midpoint_pairs(coarse)
+        if pairs is not None:  # P1 on a refined triangle mesh: no point location
+            v = np.asarray(u, dtype=float).reshape(coarse.mesh.p.shape[1], -1)  # (vertices, components)
+            return np.concatenate([v, 0.5 * (v[pairs[0]] + v[pairs[1]])]).ravel()
         values = probes(coarse.dof_basis, self.dof_basis.doflocs, outside="nearest") @ u
         if isinstance(self.element, ElementVector):  # rows component-major, dofs interleaved
             j = np.arange(self.ndofs)
             values = values.reshape(self.mesh.dim(), -1)[j % self.mesh.dim(), j]
         return values
+
+    def _midpoint_pairs(self, coarse):
+        """The coarse vertex pairs (2, m) whose midpoints are this field's further dofs when
+        both fields are P1 (scalar or vector, dofs numbered by vertex) on triangle meshes and
+        this mesh is the coarse one refined by scikit-fem (Mesh.refined: the coarse vertices,
+        then the midpoints of its facets, in facet order); None otherwise.  There the nodal
+        interpolant of the coarse function is its vertex values followed by the means
+        (u_a + u_b) / 2 over the facets (a, b)."""
+        fine, mesh = self.mesh, coarse.mesh
+        if not (type(fine).__name__ == type(mesh).__name__ == "MeshTri1" and
+                all(vertex_numbered(f) for f in (self, coarse)) and
+                type(self.element) is type(coarse.element)):
+            return None
+        n = mesh.p.shape[1]
+        build_facets(mesh)
+        if fine.p.shape[1] != n + mesh.facets.shape[1] or not np.array_equal(fine.p[:, :n], mesh.p) \
+                or not np.array_equal(fine.p[:, n:], mesh.p[:, mesh.facets].mean(axis=1)):
+            return None
+        return mesh.facets
 
     # -- Hermite-type elements (BFS, Morley): dofs are derivatives at points ---------
     HERMITE_DOFS = ("u", "u_x", "u_y", "u_xy", "u_n")
@@ -243,6 +266,15 @@ class Field:
                 raise NotImplementedError(f"field '{coarse.name}': no Hessian for u_xy dofs")
             out[sel] = H[0, 1][sel]
         return out
+
+
+def vertex_numbered(field):
+    """Whether the field is P1 on triangles (scalar or vector) with the dofs of vertex i
+    numbered i d .. i d + d - 1 (d components)."""
+    e = field.element.elem if isinstance(field.element, ElementVector) else field.element
+    nodal = field.dof_basis.nodal_dofs
+    return type(e) is ElementTriP1 and field.ndofs == nodal.size == field.mesh.p.shape[1] * nodal.shape[0] \
+        and np.array_equal(nodal.T.ravel(), np.arange(field.ndofs))
 
 
 def history(field, name=None):

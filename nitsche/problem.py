@@ -385,7 +385,8 @@ class Problem:
         out = {}
         for c, t, (g, lam, alpha, P) in self._finite_values(x):
             a = alpha[..., None] if np.ndim(g) == 3 else alpha
-            s = lam - g / a
+            s = np.divide(g, a)
+            np.subtract(lam, s, out=s)  # s = lam - g / a, one array
             s_n = s[..., 0] if np.ndim(s) == 3 else s
             out[c.name] = dict(g=g, lam=lam, alpha=alpha, multiplier=P, W=t.W[:t.nel],
                                x=t.x[:t.nel], active=s_n >= 0 if c.inequality else None)
@@ -493,19 +494,21 @@ def report_constraints(constraints, values, parts, alpha0, limits):
         v = values[c.name]
         vector = np.ndim(v["g"]) == 3
         g, lam, lam_n = (v[k][..., 0] if vector else v[k] for k in ("g", "lam", "multiplier"))
-        if c.inequality:
+        if c.inequality:  # violation max(-g, 0): largest where g is smallest (first point if none)
             active = lam_n > 0
-            violation = np.maximum(-g, 0.0)
-        else:
+            worst = np.unravel_index(np.argmin(g), g.shape)
+            worst = worst if g[worst] < 0 else (0,) * g.ndim
+            viol = float(np.maximum(-g[worst], 0.0))
+        else:  # violation |g|
             active = np.zeros_like(g, bool)
-            violation = np.abs(g)
-        worst = np.unravel_index(np.argmax(violation), violation.shape)
-        viol = float(violation[worst])
+            worst = np.unravel_index(np.argmax(np.abs(g)), g.shape)
+            viol = float(np.abs(g[worst]))
         size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
                    default=0.0)
         a, limit_c = alpha0[c.name], limits[c.name]
-        limit = min(0.5, 50 * float(np.broadcast_to(a, violation.shape[:1])[worst[0]])) * size
-        consistency = 2 * float(np.abs(np.broadcast_to(v["alpha"] * lam, violation.shape)[worst]))
+        limit = min(0.5, 50 * float(np.broadcast_to(a, g.shape[:1])[worst[0]])) * size
+        alpha_w, lam_w = (np.broadcast_to(b, g.shape)[worst] for b in (v["alpha"], lam))
+        consistency = 2 * float(np.abs(alpha_w * lam_w))
         rep[c.name] = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
                            alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
                            alpha0_limit_min=float(limit_c.min()),

@@ -6,6 +6,7 @@ fine space, I u_{k-1}.  The successive difference E_k = |u_k - I u_{k-1}|_E
 log2(E_{k-1} / E_k); errors against an exact solution are added where the case
 has one.
 """
+import dataclasses
 import sys
 import time
 
@@ -53,8 +54,9 @@ def nested(make_problem, levels, solve=None, **newton_options):
     check = newton_options.pop("minimum_check", True)
     for k in levels:
         problem = make_problem(k)
-        result = solve(problem, prolongate(prev[0], prev[1].x, problem) if prev else None,
-                       minimum_check=check and k == levels[-1], **newton_options)
+        x0 = prolongate(prev[0], prev[1].x, problem) if prev else None
+        prev = result = None  # not held here through this solve (solve_nested drops its own)
+        result = solve(problem, x0, minimum_check=check and k == levels[-1], **newton_options)
         yield k, problem, result
         if not result.converged:
             return
@@ -70,12 +72,20 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     Returns (problem, result, iterations per level, failure): the finest level's problem
     and result, or, when a level fails (Newton, or an error such as MemoryError on a finer
     level), those of the finest converged level and failure = dict(level, reason); a
-    failure on the first level returns its unconverged result (an error there is raised)."""
+    failure on the first level returns its unconverged result (an error there is raised).
+    A converged coarser level keeps its result without its problem, which is built again
+    only if a finer level fails, so that its memory is not held through the finer solves."""
     prev, its = None, []
+    engine = engine or (lambda build: build())
+    build = lambda k: engine(lambda: case.problem(k, degree, p))  # noqa: E731
+
+    def converged_level():
+        """The finest converged level's problem (built again) and result."""
+        k, result = prev
+        problem = build(k)
+        return problem, dataclasses.replace(result, problem=problem)
     try:
-        engine = engine or (lambda build: build())
-        for k, problem, result in nested(lambda k: engine(lambda: case.problem(k, degree, p)),
-                                         range(first, level + 1), case.solve,
+        for k, problem, result in nested(build, range(first, level + 1), case.solve,
                                          **(newton_options or {})):
             its.append(result.iterations)
             if progress:
@@ -83,14 +93,17 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
                       f"Newton iterations, {result.seconds:.2f} s", file=sys.stderr, flush=True)
             if not result.converged:
                 failure = dict(level=k, reason=result.reason)
-                return (*prev, its, failure) if prev else (problem, result, its, failure)
-            prev = (problem, result)
+                return (*converged_level(), its, failure) if prev else (problem, result, its, failure)
+            if k == level:
+                return problem, result, its, None
+            prev = (k, dataclasses.replace(result, problem=None))
+            problem = result = None
     except FAILURES as e:
         if prev is None:
             raise
         reason = "out of memory" if isinstance(e, MemoryError) else f"{type(e).__name__}: {e}"
-        return (*prev, its, dict(level=first + len(its), reason=reason))
-    return (*prev, its, None)
+        return (*converged_level(), its, dict(level=first + len(its), reason=reason))
+    raise ValueError(f"no level to solve: first level {first} > level {level}")
 
 
 def alpha0_summary(problem):

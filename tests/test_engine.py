@@ -264,3 +264,31 @@ def test_a_cell_measure_takes_its_fields_quadrature_also_for_tabulations_from_a_
         return p.minimize().check().energy
 
     assert solve(5, None) == pytest.approx(solve(5, 5), rel=1e-13)
+
+
+@pytest.mark.parametrize("inequality", [True, False])
+@pytest.mark.parametrize("shift", [-0.3, 0.0, 0.5])  # violated somewhere, touching, nowhere
+def test_constraint_report_locates_the_largest_violation_as_the_full_arrays_did(inequality, shift):
+    """report_constraints finds the most violated point without full-size temporaries:
+    the same point, violation, limit and flag as max(-g, 0) (|g| for equalities) and
+    alpha lambda over all points (the first point when nothing is violated)."""
+    from types import SimpleNamespace
+    from nitsche.problem import report_constraints
+    rng = np.random.default_rng(5)
+    g = rng.random((40, 6)) + shift
+    if shift == 0.0:
+        g[7, 1] = 0.0  # touching: no violation
+    lam, alpha, W = rng.normal(size=(40, 6)), rng.random((40, 6)) * 1e-2, rng.random((40, 6))
+    values = {"c": dict(g=g, lam=lam, alpha=alpha, multiplier=np.maximum(lam - g / alpha, 0), W=W)}
+    c = SimpleNamespace(name="c", kind="inequality" if inequality else "equality",
+                        inequality=inequality, gap_names=["u"],
+                        projection=SimpleNamespace(frictional=False))
+    alpha0, u = rng.random(40) * 1e-2, rng.normal(size=10)
+    rep = report_constraints([c], values, {"u": u}, {"c": alpha0}, {"c": np.ones(40)})["c"]
+    violation = np.maximum(-g, 0.0) if inequality else np.abs(g)  # the full arrays, as before
+    worst = np.unravel_index(np.argmax(violation), violation.shape)
+    assert (worst == (0, 0)) == (inequality and shift >= 0)
+    limit = min(0.5, 50 * float(alpha0[worst[0]])) * float(np.abs(u).max())
+    consistency = 2 * float(np.abs((alpha * lam)[worst]))
+    assert rep["max_violation"] == float(violation[worst]) and rep["violation_limit"] == limit
+    assert rep["infeasible"] == bool(violation[worst] > limit and violation[worst] > consistency)

@@ -295,3 +295,36 @@ def test_prolongation_to_a_refined_curved_boundary():
         locate(fc.basis, fine.p)
     linear = lambda x: 1 + 2 * x[0] - 3 * x[1]
     assert np.allclose(ff.prolongate(fc, fc.interpolate(linear)), linear(fine.p), atol=1e-13)
+
+
+@pytest.mark.parametrize("element", [ElementTriP1(), ElementVector(ElementTriP1())])
+def test_prolongation_to_a_refined_triangle_mesh_by_facet_midpoints(element):
+    """P1 on Mesh.refined(): the vertex values and the facet means (Field._midpoint_pairs)
+    equal the point-location prolongation (probes) exactly; a mesh whose new vertices are
+    not the facet midpoints takes point location."""
+    from nitsche.locate import probes
+    coarse = MeshTri.init_symmetric().refined(2)
+    fc, ff = ni.Field("u", coarse, element), ni.Field("u", coarse.refined(), element)
+    assert ff._midpoint_pairs(fc) is not None
+    u = np.random.default_rng(4).normal(size=fc.ndofs)
+    by_location = probes(fc.dof_basis, ff.dof_basis.doflocs) @ u
+    d = ff.ndofs // ff.mesh.p.shape[1]
+    j = np.arange(ff.ndofs)
+    assert np.array_equal(ff.prolongate(fc, u), by_location.reshape(d, -1)[j % d, j])
+    p = ff.mesh.p.copy()
+    p[:, -1] += 0.01  # a new vertex off its facet's midpoint (still inside the coarse mesh)
+    moved = ni.Field("u", MeshTri(p, ff.mesh.t), element)
+    assert moved._midpoint_pairs(fc) is None
+    linear = lambda x: 1 + 2 * x[0] - 3 * x[1]  # every component; P1 reproduces it
+    values = moved.prolongate(fc, linear(fc.dof_basis.doflocs))
+    assert np.allclose(values, linear(moved.dof_basis.doflocs), atol=1e-13)
+
+
+def test_refined_with_the_fast_facets_is_scikit_fems_refinement():
+    """nitsche.meshes.refined gives the same vertices, cells, facets and t2f as
+    scikit-fem's Mesh.refined (its steps read the facets built by build_facets)."""
+    from nitsche.meshes import refined
+    for base in (MeshTri(), MeshTri.init_symmetric().scaled((4.0, 4.0)), MeshTet()):
+        ours, theirs = refined(base, 3), base.refined(3)
+        for name in ("p", "t", "facets", "t2f"):
+            assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name

@@ -8,6 +8,7 @@ import sys
 import time
 
 import meshio
+import numpy as np
 import pytest
 
 from nitsche import commands
@@ -274,6 +275,19 @@ def test_a_nested_run_that_fails_writes_the_finest_converged_level(tmp_path, mon
     assert data["failure"] == {"level": 2, "reason": "out of memory"}
     assert len(meshio.read(out / "solution.vtu").points) == 145  # level 1's mesh
     assert "the finest converged one" in capsys.readouterr().err
+
+
+def test_a_nested_failure_returns_the_coarser_problem_built_again(monkeypatch):
+    """solve_nested keeps a converged coarser level's result without its problem (memory)
+    and, when a finer level fails, builds that problem again: the result's own, with the
+    same J_h at the result's x."""
+    from nitsche.study import solve_nested
+    fail_at(monkeypatch, "obstacle", 2, MemoryError)
+    case = get("obstacle")
+    problem, result, its, failure = solve_nested(case, 3, 1, case.parameters())
+    assert failure == {"level": 2, "reason": "out of memory"} and len(its) == 2
+    assert result.problem is problem and problem.setup.level == 1
+    assert np.isclose(problem.energy(result.x), result.energy, rtol=1e-13, atol=0)
 
 
 def test_a_study_that_fails_keeps_the_levels_it_finished(tmp_path, monkeypatch, capsys):

@@ -13,6 +13,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
+from nitsche.meshes import refined
 from nitsche.ops import dot, grad, lap
 from nitsche.case import POSITIVE
 from nitsche.norms import exact_errors
@@ -57,7 +58,7 @@ def exact_grad(x):
 
 
 def build(level, degree, p):
-    mesh = MeshTri.init_symmetric().scaled((4.0, 4.0)).translated((-2.0, -2.0)).refined(level + 2)
+    mesh = refined(MeshTri.init_symmetric().scaled((4.0, 4.0)).translated((-2.0, -2.0)), level + 2)
     u = ni.Field("u", mesh, ElementTriP1() if degree == 1 else ElementTriP2(),
                  fixed="boundary", value=exact)
 

@@ -37,6 +37,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
+from nitsche.meshes import refined
 from nitsche.conditioning import jacobian_condition, fitted_slope
 from nitsche.case import NONNEGATIVE, OneOf, POSITIVE, ParameterError
 from nitsche.ops import dot, grad, lap
@@ -89,7 +90,7 @@ def check(p):
 
 
 def build(level, degree, p):
-    mesh = MeshTri().refined(level + 2)
+    mesh = refined(MeshTri(), level + 2)
     element = ElementTriP1() if degree == 1 else ElementTriP2()  # one object: one basis for both
     u1 = ni.Field("u1", mesh, element, fixed="boundary")
     u2 = ni.Field("u2", mesh, element, fixed="boundary")

@@ -1,0 +1,120 @@
+"""The nested chain of a case by CPU time, phase by phase, in fresh processes.
+
+Each repetition runs, interleaved (ours, before, ours, ...), a child process that solves
+levels 0..L by nitsche.study.nested (what `nitsche run CASE --level L` does before its
+outputs) and reports the chain's CPU time (user + system, imports excluded), its wall
+time, the set-up of each level (`case.problem`), the prolongations between levels, the
+kernel loading (`assembly.compile_seconds`), the finest level's Newton solve, the peak
+resident memory (ru_maxrss), the minor page faults, the energy and the iterations.  CPU
+time is the measure that a shared machine disturbs least; medians are printed.
+
+    python benchmarks/chain_setup.py --cases obstacle two-membrane --level 6 --repeat 3 \\
+        --before /tmp/before   # a checkout of an earlier version, side by side
+"""
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
+
+CHILD = r"""
+import json, resource, sys, time
+import nitsche.assembly as assembly
+import nitsche.study as study
+from nitsche.cases import get
+case_name, level = sys.argv[1], int(sys.argv[2])
+case = get(case_name)
+p = case.parameters()
+setup, prolongation = [], [0.0]
+prolongate = study.prolongate
+
+def timed_prolongate(*a):
+    c = time.process_time()
+    try:
+        return prolongate(*a)
+    finally:
+        prolongation[0] += time.process_time() - c
+study.prolongate = timed_prolongate
+
+def build(k):
+    c = time.process_time()
+    problem = case.problem(k, case.degrees[0], p)
+    setup.append(time.process_time() - c)
+    return problem
+
+t0, c0 = time.perf_counter(), time.process_time()
+its = []
+for k, problem, result in study.nested(build, range(level + 1), case.solve):
+    its.append(result.iterations)
+    finest = result.seconds
+cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+usage = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps(dict(cpu=cpu, wall=wall, setup=setup, prolongation=prolongation[0],
+                      loading=assembly.compile_seconds[0], finest_solve=finest,
+                      energy=result.energy, iterations=its, unknowns=int(problem.free.size),
+                      peak_mb=usage.ru_maxrss / 1024.0, minor_faults=usage.ru_minflt)))
+"""
+
+
+def run(case, level, source):
+    """One chain in a child process that imports nitsche from `source`."""
+    env = dict(os.environ, PYTHONPATH=source, OPENBLAS_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", CHILD, case, str(level)], env=env, cwd="/",
+                         capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cases", nargs="+", default=["obstacle", "two-membrane"])
+    ap.add_argument("--level", type=int, default=6)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--before", help="a checkout of an earlier version, run side by side")
+    ap.add_argument("--name", default="chain_setup.json", help="the results file in benchmarks/results")
+    args = ap.parse_args()
+    ours = os.path.dirname(HERE)
+    versions = [("ours", ours)] + ([("before", args.before)] if args.before else [])
+    rows = []
+    for case in args.cases:
+        runs = {v: [] for v, _ in versions}
+        for rep in range(args.repeat):
+            for v, source in versions:
+                r = run(case, args.level, source)
+                runs[v].append(r)
+                print(f"  {case} L{args.level} rep {rep} {v}: CPU {r['cpu']:.2f} s (wall {r['wall']:.2f}), "
+                      f"set-up {sum(r['setup']):.2f} (finest {r['setup'][-1]:.2f}), prolongation "
+                      f"{r['prolongation']:.2f}, loading {r['loading']:.2f}, finest solve "
+                      f"{r['finest_solve']:.2f}, {r['peak_mb']:.0f} MB, {r['minor_faults']} faults",
+                      file=sys.stderr, flush=True)
+        for v, _ in versions:
+            med = lambda f: statistics.median(f(r) for r in runs[v])  # noqa: E731
+            rows.append(dict(case=case, version=v, level=args.level, unknowns=runs[v][0]["unknowns"],
+                             energy=runs[v][0]["energy"], iterations=runs[v][0]["iterations"],
+                             cpu=med(lambda r: r["cpu"]), wall=med(lambda r: r["wall"]),
+                             setup=med(lambda r: sum(r["setup"])),
+                             finest_setup=med(lambda r: r["setup"][-1]),
+                             prolongation=med(lambda r: r["prolongation"]),
+                             loading=med(lambda r: r["loading"]),
+                             finest_solve=med(lambda r: r["finest_solve"]),
+                             peak_mb=med(lambda r: r["peak_mb"]),
+                             minor_faults=med(lambda r: r["minor_faults"]), runs=runs[v]))
+    print(f"{'case':<14}{'version':<8}{'unknowns':>9}{'CPU s':>7}{'set-up':>8}{'finest':>8}"
+          f"{'prolong.':>9}{'loading':>8}{'solve L':>8}{'peak MB':>8}  energy, iterations")
+    for r in rows:
+        print(f"{r['case']:<14}{r['version']:<8}{r['unknowns']:>9d}{r['cpu']:>7.2f}{r['setup']:>8.2f}"
+              f"{r['finest_setup']:>8.2f}{r['prolongation']:>9.3f}{r['loading']:>8.2f}"
+              f"{r['finest_solve']:>8.2f}{r['peak_mb']:>8.0f}  {r['energy']:.15g}, {r['iterations']}")
+    os.makedirs(RESULTS, exist_ok=True)
+    with open(os.path.join(RESULTS, args.name), "w") as fh:
+        json.dump(dict(rows=rows, cpu_count=os.cpu_count(), date=time.strftime("%Y-%m-%d %H:%M"),
+                       load=os.getloadavg(), note="CPU seconds of the chain (imports excluded), "
+                       "medians of the repetitions; shared 2-core machine"), fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,95 @@
+"""Where `nitsche run CASE --level L` reaches its peak resident memory, phase by phase.
+
+A thread samples VmRSS every 5 ms while the command runs in this process; the library's
+phases (set-up: fields, terms, alpha0, pattern; Newton: evaluate, free matrix, factor,
+CG, constraint values; prolongation; the outputs) are labelled by wrapping their
+functions, and the highest sample of each phase is printed, highest first, with the
+process's VmHWM.  A diagnostic (the wrappers cost little; the seconds are not timings).
+
+    python benchmarks/memory_phases.py obstacle 7 [--out DIR] [--name memory_phases_obstacle7.json]
+"""
+import argparse
+import functools
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+RESULTS = os.path.join(HERE, "results")
+stack, samples = ["imports"], []
+
+
+def status(key):
+    """A line of /proc/self/status in MB (VmRSS, VmHWM)."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(key):
+                return int(line.split()[1]) / 1024.0
+
+
+def sampler():
+    while True:
+        samples.append((time.perf_counter(), status("VmRSS"), "/".join(stack[-3:])))
+        time.sleep(0.005)
+
+
+def label(owner, name, what):
+    """Wrap owner.name so that samples taken inside it carry `what`."""
+    f = getattr(owner, name)
+
+    @functools.wraps(f)
+    def inside(*a, **k):
+        stack.append(what)
+        try:
+            return f(*a, **k)
+        finally:
+            stack.pop()
+    setattr(owner, name, inside)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("case")
+    ap.add_argument("level", type=int)
+    ap.add_argument("--out", help="output folder of the run (default: a temporary one)")
+    ap.add_argument("--name", help="a results file in benchmarks/results")
+    args = ap.parse_args()
+    threading.Thread(target=sampler, daemon=True).start()
+    from nitsche import assembly, case, commands, fields, linalg, newton, problem, study
+    for owner, name, what in [
+            (case.Case, "problem", "set-up"), (fields.Field, "__init__", "field"),
+            (assembly.Term, "__init__", "term"), (problem.Problem, "_resolve_alpha0", "alpha0"),
+            (assembly.Assembler, "__init__", "pattern"), (study, "prolongate", "prolongation"),
+            (newton, "newton", "newton"), (assembly.Assembler, "evaluate", "evaluate"),
+            (problem.Problem, "_free_matrix", "free matrix"), (linalg.Cholmod, "_factor", "factor"),
+            (linalg, "pcg", "CG"), (problem.Problem, "constraint_values", "constraint values"),
+            (commands, "solve", "solve"), (commands, "write_vtu", "out: VTU"),
+            (commands, "plot_solution", "out: figure"), (commands, "reactions", "out: reactions"),
+            (commands, "evaluate", "out: quantities"), (commands, "write_json", "out: result.json")]:
+        label(owner, name, what)
+    from nitsche.cli import main as cli
+    stack[:] = ["run"]
+    out = args.out or tempfile.mkdtemp(prefix="memory_phases_")
+    cli(["run", args.case, "--level", str(args.level), "--out", out])
+    time.sleep(0.02)
+    t0, peaks = samples[0][0], {}
+    for t, rss, where in samples:
+        if where not in peaks or rss > peaks[where][0]:
+            peaks[where] = (rss, t - t0)
+    rows = sorted(peaks.items(), key=lambda kv: -kv[1][0])
+    print(f"{args.case} level {args.level}: VmHWM {status('VmHWM'):.0f} MB", file=sys.stderr)
+    for where, (rss, t) in rows[:25]:
+        print(f"  {rss:7.0f} MB  at {t:6.2f} s  {where}", file=sys.stderr)
+    if args.name:
+        os.makedirs(RESULTS, exist_ok=True)
+        with open(os.path.join(RESULTS, args.name), "w") as fh:
+            json.dump(dict(case=args.case, level=args.level, vmhwm_mb=status("VmHWM"),
+                           phases=[dict(phase=w, peak_mb=r, at_seconds=t) for w, (r, t) in rows],
+                           load=os.getloadavg(), date=time.strftime("%Y-%m-%d %H:%M")), fh, indent=1)
+
+
+if __name__ == "__main__":
+    main()
