@@ -17,7 +17,8 @@ d2w/dz2; an energy term is the case R = dw/dz.
 The pointwise derivatives come from jax.grad / jax.jacfwd, vmapped over all
 points and jitted on fixed-size chunks of elements, so one compiled kernel
 serves every Newton step and every refinement level.  The sparsity pattern and
-the scatter map into CSR storage are computed once per mesh.
+the scatter of element matrices into CSR storage (nitsche.pattern) are computed once
+per mesh.
 """
 import copy
 import hashlib
@@ -34,6 +35,7 @@ from jax.extend.core import Literal
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
+from .pattern import Pattern
 
 CHUNK_POINTS = (2 ** 10, 2 ** 15)  # quadrature points per kernel call: small, large
 _COMPILED = {}
@@ -552,24 +554,6 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
             "values": values}[kind]
 
 
-def csr_pattern(keys, n):
-    """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
-    row * n + column (repeated keys: one entry), and each key's position in it (the
-    scatter map): one sort of the keys.  Index arrays are int32 while they fit."""
-    order = np.argsort(keys)
-    ordered = keys[order]
-    new = np.empty(ordered.size, bool)
-    new[:1] = True
-    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
-    rows, columns = np.divmod(ordered[new], n)
-    index = np.int32 if max(rows.size, n) < 2 ** 31 else np.int64
-    position = np.empty(keys.size, index)
-    position[order] = np.cumsum(new) - 1
-    indptr = np.zeros(n + 1, index)
-    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
-    return indptr, columns.astype(index), position
-
-
 class Assembler:
     """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms; residual
     terms add to the gradient (the residual) and Hessian (its Jacobian), not to the energy."""
@@ -578,64 +562,53 @@ class Assembler:
         self.terms, self.ndofs = terms, ndofs
         self._build_pattern()
 
-    @staticmethod
-    def _keys(dofs, ndofs):
-        """row * ndofs + col of every entry of the element matrices on dofs (E, k)."""
-        return (np.repeat(dofs, dofs.shape[1], axis=1) * np.int64(ndofs)
-                + np.tile(dofs, (1, dofs.shape[1]))).ravel()
-
     def _build_pattern(self, keep=None):
-        """The CSR pattern of all terms' element matrices (and the entries `keep`: sorted
-        keys of an earlier pattern, so that it only grows) and each term's scatter map."""
-        ndofs = self.ndofs
-        distinct = []  # terms on the same elements share their local-to-global map
+        """The CSR pattern of all terms' element matrices (and the entries `keep` = (indptr,
+        indices) of an earlier pattern, so that it only grows) and each term's Scatter;
+        terms on equal local-to-global maps share theirs."""
+        distinct = []
         for t in self.terms:
             if not any(d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs)
                        for d in distinct):
                 distinct.append(t.global_dofs)
-        keys = [self._keys(d, ndofs) for d in distinct]
-        counts = [k.size for k in keys]
-        self.indptr, self.indices, position = csr_pattern(
-            np.concatenate(keys + ([] if keep is None else [keep])), ndofs)
-        self.nnz = self.indices.size
-        self.sorted_keys = (np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs
-                            + self.indices)
-        positions = np.split(position[:sum(counts)], np.cumsum(counts)[:-1])
-        self.scatter = [next(p for d, p in zip(distinct, positions) if d.shape == t.global_dofs.shape
-                             and np.array_equal(d, t.global_dofs)) for t in self.terms]
+        self.pattern = Pattern(distinct, self.ndofs, keep)
+        self.indptr, self.indices, self.nnz = self.pattern.indptr, self.pattern.indices, self.pattern.nnz
+        self.scatter = [next(s for d, s in zip(distinct, self.pattern.scatters)
+                             if d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs))
+                        for t in self.terms]
         self._quadratics = {}  # assembled on this pattern
 
     def refresh(self, terms):
         """After the given terms changed their global dofs (an interface paired anew): their
-        scatter maps, within the pattern if it holds their entries (returns False), else on a
+        scatters, within the pattern if it holds their entries (returns False), else on a
         pattern grown to hold them (returns True: the matrix structure changed)."""
         for t in terms:
-            keys = self._keys(t.global_dofs, self.ndofs)
-            pos = np.minimum(np.searchsorted(self.sorted_keys, keys), self.nnz - 1)
-            if not np.array_equal(self.sorted_keys[pos], keys):
-                self._build_pattern(keep=self.sorted_keys)
+            scatter = self.pattern.scatter(t.global_dofs)
+            if scatter is None:
+                self._build_pattern(keep=(self.indptr, self.indices))
                 return True
             for k, other in enumerate(self.terms):
                 if other is t:
-                    self.scatter[k] = pos
+                    self.scatter[k] = scatter
         return False
 
-    def _quadratic(self, t, idx):
+    def _quadratic(self, t, scatter):
         """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""
         if id(t) not in self._quadratics:
             e, g, H = t.quadratic_parts()
             g0 = np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
-            data = np.bincount(idx, weights=H.ravel(), minlength=self.nnz)
+            data = np.zeros(self.nnz)
+            scatter.add(data, H, t.global_dofs)
             self._quadratics[id(t)] = (float(e.sum()), g0, data, self.matrix(data))
         return self._quadratics[id(t)]
 
     def energy(self, x, terms=None):
         E = 0.0
-        for t, idx in zip(self.terms, self.scatter):
+        for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms or t.residual:
                 continue
             if t.is_quadratic:
-                E0, g0, _, K = self._quadratic(t, idx)
+                E0, g0, _, K = self._quadratic(t, scatter)
                 E += E0 + g0 @ x + 0.5 * x @ (K @ x)
             else:
                 E += float(t.run("energy", x)[0].sum())
@@ -646,11 +619,11 @@ class Assembler:
         unless asked).  Quadratic terms are assembled once and then applied as matrices."""
         E, grad = 0.0, np.zeros(self.ndofs)
         data = np.zeros(self.nnz) if hessian else None
-        for t, idx in zip(self.terms, self.scatter):
+        for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
                 continue
             if t.is_quadratic:
-                E0, g0, d, K = self._quadratic(t, idx)
+                E0, g0, d, K = self._quadratic(t, scatter)
                 Kx = K @ x
                 E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
                 grad = grad + g0 + Kx
@@ -661,7 +634,7 @@ class Assembler:
             E += float(out[0].sum())
             grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
             if hessian:
-                data += np.bincount(idx, weights=out[2].ravel(), minlength=self.nnz)
+                scatter.add(data, out[2], t.global_dofs)
         return E, grad, data
 
     def gradient(self, x, terms=None):

@@ -1,0 +1,164 @@
+"""The CSR sparsity pattern of a sum of element matrices, built on groups of dofs, and the
+scatter of element matrices into it by blocks.
+
+The dofs fall into groups: runs of consecutive dofs that every element holds together,
+in consecutive local positions (a vector Lagrange field's components at a node; a
+scalar field's dofs are groups of one).  The pattern is built on the groups, from the
+pairs (g, h) of groups that share an element (one sort of the E r^2 group pairs of E
+elements of r groups each, instead of the E k^2 entries of their k x k matrices), then
+expanded: every dof row of group g holds the columns of every group h of row g, so a
+vector field's pattern is its node pattern with full b x b blocks and no structurally
+zero blocks.
+
+An element's local columns fall into runs (consecutive dofs of one group, the same local
+columns on every element of a map); its matrix enters by blocks, one offset q[a, c] per
+pair of runs (a, c): the position in the CSR data of the entry (j, l) on dofs D_j, D_l is
+
+    indptr[D_j] + q[run(j), run(l)] + (l - first(run(l))),
+
+q[a, c] = (columns of the groups before group(D_first(c)) in the row of group(D_first(a)))
++ (D_first(c) - first dof of its group).
+"""
+import numpy as np
+
+CHUNK = 2 ** 20  # element-matrix entries scattered per call
+
+
+def index_type(*sizes):
+    """int32 while the sizes fit, else int64."""
+    return np.int32 if max(sizes, default=0) < 2 ** 31 else np.int64
+
+
+def csr_pattern(keys, n):
+    """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
+    row * n + column (repeated keys: one entry), and each key's position in it: one sort
+    of the keys.  Index arrays are int32 while they fit."""
+    order = np.argsort(keys)
+    ordered = keys[order]
+    new = np.empty(ordered.size, bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    rows, columns = np.divmod(ordered[new], n)
+    index = index_type(rows.size, n)
+    position = np.empty(keys.size, index)
+    position[order] = np.cumsum(new) - 1
+    indptr = np.zeros(n + 1, index)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    return indptr, columns.astype(index), position
+
+
+def dof_groups(maps, n):
+    """The group of each of the n dofs: d and d + 1 are in one group when every element
+    of the local-to-global maps (E, k) that holds one of them holds d + 1 right after d."""
+    joined = np.zeros(n, bool)  # joined[d]: d and d + 1 in one group
+    joined[:-1] = True
+    held = np.zeros(n, bool)
+    for D in maps:
+        if D.size == 0:
+            continue
+        held[D] = True
+        follows = np.zeros(D.shape, bool)
+        follows[:, :-1] = D[:, 1:] == D[:, :-1] + 1
+        joined[D[~follows]] = False  # a d not followed by d + 1
+        led = np.ones(D.shape, bool)
+        led[:, 1:] = ~follows[:, :-1]
+        d = D[led]
+        joined[d[d > 0] - 1] = False  # a d not preceded by d - 1
+    joined[:-1] &= held[:-1] & held[1:]
+    starts = np.ones(n, bool)
+    starts[1:] = ~joined[:-1]
+    return np.cumsum(starts) - 1
+
+
+def runs(D, group):
+    """The first local column of each run of a map D (E, k): columns j - 1, j are in one
+    run when D[:, j] = D[:, j - 1] + 1 in the same group on every element."""
+    same = (D[:, 1:] == D[:, :-1] + 1) & (group[D[:, 1:]] == group[D[:, :-1]])
+    return np.flatnonzero(np.concatenate([[True], ~same.all(axis=0)]))
+
+
+class Pattern:
+    """The CSR pattern (indptr, indices, nnz) of the element matrices on the given
+    local-to-global maps (and of the entries of an earlier pattern `keep` = (indptr,
+    indices), so that a pattern only grows), with one Scatter per map (`scatters`)."""
+
+    def __init__(self, maps, n, keep=None):
+        self.n = n
+        self.group = dof_groups(maps, n)
+        G = int(self.group[-1]) + 1 if n else 0
+        self.start = np.flatnonzero(np.diff(self.group, prepend=-1))  # first dof of each group
+        size = np.diff(np.append(self.start, n))
+        firsts = [runs(D, self.group) for D in maps]
+        keys = [self._pair_keys(D, f) for D, f in zip(maps, firsts)]
+        if keep is not None:
+            rows = np.repeat(np.arange(n), np.diff(keep[0]))
+            keys.append(self.group[rows] * np.int64(G) + self.group[keep[1]])
+        self.group_indptr, self.group_indices, position = csr_pattern(
+            np.concatenate(keys) if keys else np.zeros(0, np.int64), G)
+        # each group entry (g, h): its first column within the dof rows of g, and their length
+        width = size[self.group_indices]
+        before = np.concatenate([[0], np.cumsum(width)])  # columns before each entry, all rows
+        row_start = before[self.group_indptr[:-1]]
+        self.offset = before[:-1] - np.repeat(row_start, np.diff(self.group_indptr))
+        length = (before[self.group_indptr[1:]] - row_start)[self.group]  # of each dof row
+        nnz = int(length.sum())
+        index = index_type(nnz, n)
+        self.offset = self.offset.astype(index)
+        self.indptr = np.zeros(n + 1, index)
+        np.cumsum(length, out=self.indptr[1:])
+        columns = np.repeat(self.start[self.group_indices] - before[:-1], width) \
+            + np.arange(before[-1])  # the columns of each group row
+        self.indices = columns[np.repeat(row_start[self.group] - self.indptr[:-1], length)
+                               + np.arange(nnz, dtype=index)].astype(index)
+        self.nnz = nnz
+        sizes = [k.size for k in keys[:len(maps)]]
+        self.scatters = [Scatter(self, D, f, p) for D, f, p in
+                         zip(maps, firsts, np.split(position[:sum(sizes)], np.cumsum(sizes)[:-1]))]
+
+    def _pair_keys(self, D, first):
+        """row * G + column of the group pairs of every element of the map D, (E, r, r) raveled."""
+        G = np.int64(self.start.size)
+        g = self.group[D[:, first]].astype(np.int64)
+        return (g[:, :, None] * G + g[:, None, :]).ravel()
+
+    def scatter(self, D):
+        """The Scatter of the map D if the pattern holds all of its entries, else None."""
+        first = runs(D, self.group)
+        keys = self._pair_keys(D, first)
+        G = np.int64(self.start.size)
+        held = np.repeat(np.arange(G), np.diff(self.group_indptr)) * G + self.group_indices
+        position = np.minimum(np.searchsorted(held, keys), held.size - 1)
+        if held.size == 0 or not np.array_equal(held[position], keys):
+            return None
+        return Scatter(self, D, first, position)
+
+
+class Scatter:
+    """The element matrices (E, k, k) on one local-to-global map D into the CSR data of a
+    Pattern, by blocks (module docstring): q (E, r, r), one offset per pair of runs."""
+
+    def __init__(self, pattern, D, first, position):
+        E, k = D.shape
+        self.indptr = pattern.indptr
+        self.run = np.repeat(np.arange(first.size), np.diff(np.append(first, k)))  # of each column
+        self.shift = np.arange(k) - first[self.run]
+        lead = D[:, first]
+        self.q = (pattern.offset[position.reshape(E, first.size, first.size)]
+                  + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(pattern.indptr.dtype)
+
+    @property
+    def nbytes(self):
+        return self.q.nbytes + self.run.nbytes + self.shift.nbytes
+
+    def positions(self, D, elements=slice(None)):
+        """The positions in the CSR data of the entries of the element matrices (e, k, k)
+        of the given elements of the map D."""
+        q = self.q[elements][:, self.run][:, :, self.run]
+        return self.indptr[D[elements]][:, :, None] + q + self.shift
+
+    def add(self, data, H, D):
+        """data += the element matrices H (E, k, k) on the map D, in chunks of elements."""
+        E, k = D.shape
+        step = max(1, CHUNK // (k * k))
+        for s in range(0, E, step):
+            np.add.at(data, self.positions(D, slice(s, s + step)).ravel(), H[s:s + step].ravel())
