@@ -598,7 +598,7 @@ class Assembler:
             e, g, H = t.quadratic_parts()
             g0 = np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
             data = np.zeros(self.nnz)
-            scatter.add(data, H, t.global_dofs)
+            scatter.add(data, H)
             self._quadratics[id(t)] = (float(e.sum()), g0, data, self.matrix(data))
         return self._quadratics[id(t)]
 
@@ -634,7 +634,7 @@ class Assembler:
             E += float(out[0].sum())
             grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
             if hessian:
-                scatter.add(data, out[2], t.global_dofs)
+                scatter.add(data, out[2])
         return E, grad, data
 
     def gradient(self, x, terms=None):

@@ -12,12 +12,12 @@ zero blocks.
 
 An element's local columns fall into runs (consecutive dofs of one group, the same local
 columns on every element of a map); its matrix enters by blocks, one offset q[a, c] per
-pair of runs (a, c): the position in the CSR data of the entry (j, l) on dofs D_j, D_l is
+pair of runs (a, c), the position P[a, c] of the entry (first(a), first(c)): the start of
+the row of dof D_first(a), plus the columns of the groups before group(D_first(c)) in the
+rows of group(D_first(a)), plus D_first(c) minus the first dof of its group.  The rows of
+a group have one length (its stride), so the entry (j, l) is at
 
-    indptr[D_j] + q[run(j), run(l)] + (l - first(run(l))),
-
-q[a, c] = (columns of the groups before group(D_first(c)) in the row of group(D_first(a)))
-+ (D_first(c) - first dof of its group).
+    P[run(j), run(l)] + (j - first(run(j))) stride(run(j)) + (l - first(run(l))).
 """
 import numpy as np
 
@@ -135,30 +135,41 @@ class Pattern:
 
 class Scatter:
     """The element matrices (E, k, k) on one local-to-global map D into the CSR data of a
-    Pattern, by blocks (module docstring): q (E, r, r), one offset per pair of runs."""
+    Pattern, by blocks (module docstring): the position P (E, r, r) of the first entry of
+    each pair of runs, and the length of the rows of each run's group (E, r)."""
 
     def __init__(self, pattern, D, first, position):
         E, k = D.shape
-        self.indptr = pattern.indptr
+        index = pattern.indptr.dtype
         self.run = np.repeat(np.arange(first.size), np.diff(np.append(first, k)))  # of each column
-        self.shift = np.arange(k) - first[self.run]
+        self.shift = (np.arange(k) - first[self.run]).astype(index)  # column within its run
         lead = D[:, first]
-        self.q = (pattern.offset[position.reshape(E, first.size, first.size)]
-                  + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(pattern.indptr.dtype)
+        self.P = (pattern.indptr[lead][:, :, None] + pattern.offset[position.reshape(E, first.size, first.size)]
+                  + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(index)
+        self.stride = None if first.size == k else \
+            (pattern.indptr[lead + 1] - pattern.indptr[lead]).astype(index)  # None: runs of one column
 
     @property
     def nbytes(self):
-        return self.q.nbytes + self.run.nbytes + self.shift.nbytes
+        return sum(a.nbytes for a in (self.P, self.stride, self.run, self.shift) if a is not None)
 
-    def positions(self, D, elements=slice(None)):
-        """The positions in the CSR data of the entries of the element matrices (e, k, k)
-        of the given elements of the map D."""
-        q = self.q[elements][:, self.run][:, :, self.run]
-        return self.indptr[D[elements]][:, :, None] + q + self.shift
+    def positions(self, elements=slice(None)):
+        """The positions in the CSR data of the entries (j, l) of the element matrices of the
+        given elements: P[run(j), run(l)] + shift(j) stride[run(j)] + shift(l)."""
+        if self.stride is None:
+            return self.P[elements]
+        P = self.P[elements][:, self.run[:, None], self.run]
+        P += (self.stride[elements][:, self.run] * self.shift)[:, :, None]
+        P += self.shift
+        return P
 
-    def add(self, data, H, D):
-        """data += the element matrices H (E, k, k) on the map D, in chunks of elements."""
-        E, k = D.shape
+    def add(self, data, H):
+        """data += the element matrices H (E, k, k): by one bincount where the positions are
+        kept (runs of one column), else in chunks of elements."""
+        if self.stride is None:
+            data += np.bincount(self.P.ravel(), weights=H.ravel(), minlength=data.size)
+            return
+        E, k = H.shape[:2]
         step = max(1, CHUNK // (k * k))
         for s in range(0, E, step):
-            np.add.at(data, self.positions(D, slice(s, s + step)).ravel(), H[s:s + step].ravel())
+            np.add.at(data, self.positions(slice(s, s + step)).ravel(), H[s:s + step].ravel())

@@ -51,7 +51,7 @@ def test_pattern_and_assembled_hessian_equal_the_entrywise_ones(name, degree, le
 
 def test_vector_fields_group_their_components_and_scatter_by_node_blocks():
     """membrane-solid on tetrahedra: the solid's dofs form groups of 3 (one per node), its
-    map (E, 12) falls into 4 runs, so its scatter keeps 4 x 4 offsets per element."""
+    map (E, 12) falls into 4 runs, so its scatter keeps 4 x 4 positions and 4 strides per element."""
     case = get("membrane-solid")
     problem = case.problem(0, 1, case.parameters({"cells": "tet"}))
     a = problem.assembler
@@ -62,7 +62,7 @@ def test_vector_fields_group_their_components_and_scatter_by_node_blocks():
     assert (sizes[group[solid.global_dofs]] == 3).all()
     assert runs(solid.global_dofs, group).tolist() == [0, 3, 6, 9]
     scatter = a.scatter[a.terms.index(solid)]
-    assert scatter.q.shape == (solid.nel, 4, 4)
+    assert scatter.P.shape == (solid.nel, 4, 4) and scatter.stride.shape == (solid.nel, 4)
     assert u.ndofs == 3 * u.mesh.p.shape[1]
 
 
@@ -78,7 +78,7 @@ def test_groups_break_where_an_element_splits_a_run():
     H = [np.arange(25.0).reshape(1, 5, 5).repeat(2, 0), np.array([[[1.0, 2.0], [3.0, 4.0]]])]
     data = np.zeros(p.nnz)
     for s, D, h in zip(p.scatters, (D1, D2), H):
-        s.add(data, h, D)
+        s.add(data, h)
     assert np.array_equal(sp.csr_matrix((data, p.indices, p.indptr), shape=(6, 6)).toarray(),
                           entrywise([D1, D2], 6, H).toarray())
 
