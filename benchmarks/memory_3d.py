@@ -52,10 +52,10 @@ def basis_bytes(basis):
 
 
 def term_bytes(t):
-    """Bytes of a term's tabulations and per-point data (before a quadratic term's first
-    assembly releases them), or of its element parts (after)."""
+    """Bytes of a term's tabulations, per-point data and local-to-global maps (kept: a
+    quadratic term's element Hessians are computed anew where needed, not kept)."""
     arrays = list(t.T or []) + list(getattr(t, "J", None) or []) + [t.W, t.x, t.n, t.h, t.alpha0]
-    arrays += [t.global_dofs] + list(t.dofs) + list(t.field_dofs) + list(getattr(t, "_parts", ()))
+    arrays += [t.global_dofs] + list(t.dofs) + list(t.field_dofs)
     return nbytes(*arrays)
 
 
@@ -86,7 +86,7 @@ def main():
                terms=terms, terms_after_first_assembly={f"{i}: {t.label}": term_bytes(t)
                                                         for i, t in enumerate(a.terms)},
                value_terms=sum(term_bytes(t) for t in problem.value_terms),
-               pattern=nbytes(a.indices, a.indptr, *a.scatter),
+               pattern=nbytes(a.indices, a.indptr) + sum(s.nbytes for s in {id(s): s for s in a.scatter}.values()),
                quadratic_matrices=sum(nbytes(g0, d, K.data, K.indices, K.indptr)
                                       for (_, g0, d, K) in a._quadratics.values()),
                newton_matrix=nbytes(A.data, A.indices, A.indptr))

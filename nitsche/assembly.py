@@ -356,14 +356,6 @@ class Term:
             self._coupling = _COMPILED[key]
         return self._coupling
 
-    def quadratic_parts(self):
-        """Energy, element gradients and element Hessians at x = 0 of a quadratic term,
-        computed once; the tabulations are released afterwards (they are not needed again)."""
-        if not hasattr(self, "_parts"):
-            self._parts = self.run("full", np.zeros(1 + max(int(d.max(initial=0)) for d in self.field_dofs)))
-            self.T = self.J = self.W = self.x = self.n = self.h = self.alpha0 = None
-        return self._parts
-
     def kernel(self, kind, chunk):
         """The compiled kernel of `chunk` elements: 'energy', 'gradient' (energy, gradient),
         'full' (energy, gradient, Hessian), 'jacobian' (per point) or 'values'."""
@@ -397,18 +389,23 @@ class Term:
         return [(s, large) for s in range(0, whole, large)] + \
             [(s, small) for s in range(whole, max(nel, whole + 1), small)]
 
-    def run(self, kind, x, elements=None):
-        """Apply a kernel to all elements (or to the given ones) for the global dof vector x."""
+    def calls(self, kind, x, elements=None):
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x,
+        call by call: yields (the first element of the call, its outputs without padding)."""
         us = [x[d] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
-        outs = []
         for s, chunk in self.blocks(nel):
             kern = self.kernel(kind, chunk)
             sl = slice(s, s + chunk) if elements is None else elements[s: s + chunk]
             Ts = [a if a.shape[0] == 1 else _pad(a[sl], chunk) for a in self.tables]
             rest = [_pad(a[sl], chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            outs.append(kern(*Ts, *rest, self.parameter_data(chunk)))
-        return [np.concatenate([np.asarray(o[i]) for o in outs])[:nel] for i in range(len(outs[0]))]
+            out = kern(*Ts, *rest, self.parameter_data(chunk))
+            yield s, [np.asarray(o)[:max(0, min(chunk, nel - s))] for o in out]
+
+    def run(self, kind, x, elements=None):
+        """The kernel's outputs on all elements (or on the given ones), all calls joined."""
+        outs = [out for _, out in self.calls(kind, x, elements)]
+        return [np.concatenate([o[i] for o in outs]) for i in range(len(outs[0]))]
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
@@ -595,12 +592,22 @@ class Assembler:
     def _quadratic(self, t, scatter):
         """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""
         if id(t) not in self._quadratics:
-            e, g, H = t.quadratic_parts()
-            g0 = np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
-            data = np.zeros(self.nnz)
-            scatter.add(data, H)
-            self._quadratics[id(t)] = (float(e.sum()), g0, data, self.matrix(data))
+            E, g, data = self._add(t, scatter, np.zeros(self.ndofs), True)
+            self._quadratics[id(t)] = (E, g, data, self.matrix(data))
         return self._quadratics[id(t)]
+
+    def _add(self, t, scatter, x, hessian, grad=None, data=None):
+        """A term's energy at x, with its gradient and Hessian data added to grad and data
+        (new arrays if None), kernel call by kernel call (no array of all element matrices)."""
+        E = 0.0
+        grad = np.zeros(self.ndofs) if grad is None else grad
+        data = np.zeros(self.nnz) if hessian and data is None else data
+        for s, out in t.calls("full" if hessian else "gradient", x):
+            E += float(out[0].sum())
+            np.add.at(grad, t.global_dofs[s:s + len(out[1])], out[1])
+            if hessian:
+                scatter.add(data, out[2], s)
+        return E, grad, data
 
     def energy(self, x, terms=None):
         E = 0.0
@@ -630,11 +637,7 @@ class Assembler:
                 if hessian:
                     data += d
                 continue
-            out = t.run("full" if hessian else "gradient", x)
-            E += float(out[0].sum())
-            grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
-            if hessian:
-                scatter.add(data, out[2])
+            E += self._add(t, scatter, x, hessian, grad, data)[0]
         return E, grad, data
 
     def gradient(self, x, terms=None):

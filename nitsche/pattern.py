@@ -163,13 +163,11 @@ class Scatter:
         P += self.shift
         return P
 
-    def add(self, data, H):
-        """data += the element matrices H (E, k, k): by one bincount where the positions are
-        kept (runs of one column), else in chunks of elements."""
-        if self.stride is None:
-            data += np.bincount(self.P.ravel(), weights=H.ravel(), minlength=data.size)
-            return
-        E, k = H.shape[:2]
+    def add(self, data, H, start=0):
+        """data += the element matrices H (e, k, k) of the elements start, start + 1, ...,
+        in chunks of elements."""
+        e, k = H.shape[:2]
         step = max(1, CHUNK // (k * k))
-        for s in range(0, E, step):
-            np.add.at(data, self.positions(slice(s, s + step)).ravel(), H[s:s + step].ravel())
+        for s in range(0, e, step):
+            np.add.at(data, self.positions(slice(start + s, start + min(s + step, e))).ravel(),
+                      H[s:s + step].ravel())
