@@ -99,17 +99,17 @@ class Pattern:
         width = size[self.group_indices]
         before = np.concatenate([[0], np.cumsum(width)])  # columns before each entry, all rows
         row_start = before[self.group_indptr[:-1]]
-        self.offset = before[:-1] - np.repeat(row_start, np.diff(self.group_indptr))
         length = (before[self.group_indptr[1:]] - row_start)[self.group]  # of each dof row
         nnz = int(length.sum())
         index = index_type(nnz, n)
-        self.offset = self.offset.astype(index)
+        before, row_start = before.astype(index), row_start.astype(index)
+        self.offset = before[:-1] - np.repeat(row_start, np.diff(self.group_indptr))
         self.indptr = np.zeros(n + 1, index)
         np.cumsum(length, out=self.indptr[1:])
-        columns = np.repeat(self.start[self.group_indices] - before[:-1], width) \
-            + np.arange(before[-1])  # the columns of each group row
+        columns = np.repeat((self.start[self.group_indices] - before[:-1]).astype(index), width) \
+            + np.arange(before[-1], dtype=index)  # the columns of each group row
         self.indices = columns[np.repeat(row_start[self.group] - self.indptr[:-1], length)
-                               + np.arange(nnz, dtype=index)].astype(index)
+                               + np.arange(nnz, dtype=index)]
         self.nnz = nnz
         sizes = [k.size for k in keys[:len(maps)]]
         self.scatters = [Scatter(self, D, f, p) for D, f, p in
