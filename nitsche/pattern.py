@@ -73,8 +73,10 @@ def dof_groups(maps, n):
 def runs(D, group):
     """The first local column of each run of a map D (E, k): columns j - 1, j are in one
     run when D[:, j] = D[:, j - 1] + 1 in the same group on every element."""
-    same = (D[:, 1:] == D[:, :-1] + 1) & (group[D[:, 1:]] == group[D[:, :-1]])
-    return np.flatnonzero(np.concatenate([[True], ~same.all(axis=0)]))
+    j = 1 + np.flatnonzero((D[:, 1:] == D[:, :-1] + 1).all(axis=0))  # consecutive dofs
+    split = np.ones(D.shape[1], bool)
+    split[j] = ~(group[D[:, j]] == group[D[:, j - 1]]).all(axis=0)  # ... of one group
+    return np.flatnonzero(split)
 
 
 class Pattern:
