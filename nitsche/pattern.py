@@ -117,6 +117,13 @@ class Pattern:
         self.scatters = [Scatter(self, D, f, p) for D, f, p in
                          zip(maps, firsts, np.split(position[:sum(sizes)], np.cumsum(sizes)[:-1]))]
 
+    @property
+    def nbytes(self):
+        """Bytes kept: the CSR pattern, its groups and the scatters."""
+        return sum(a.nbytes for a in (self.indptr, self.indices, self.group, self.start, self.offset,
+                                      self.group_indptr, self.group_indices)) \
+            + sum(s.nbytes for s in self.scatters)
+
     def _pair_keys(self, D, first):
         """row * G + column of the group pairs of every element of the map D, (E, r, r) raveled."""
         G = np.int64(self.start.size)
