@@ -403,9 +403,16 @@ class Term:
             yield s, [np.asarray(o)[:max(0, min(chunk, nel - s))] for o in out]
 
     def run(self, kind, x, elements=None):
-        """The kernel's outputs on all elements (or on the given ones), all calls joined."""
-        outs = [out for _, out in self.calls(kind, x, elements)]
-        return [np.concatenate([o[i] for o in outs]) for i in range(len(outs[0]))]
+        """The kernel's outputs on all elements (or on the given ones): each call's outputs
+        copied into arrays of all elements as they come (peak: one copy plus one call's)."""
+        nel = self.nel if elements is None else len(elements)
+        outs = None
+        for s, got in self.calls(kind, x, elements):
+            if outs is None:
+                outs = [np.empty((nel,) + o.shape[1:], o.dtype) for o in got]
+            for out, o in zip(outs, got):
+                out[s:s + len(o)] = o
+        return outs
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
