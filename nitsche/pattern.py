@@ -97,6 +97,11 @@ class Pattern:
             keys.append(self.group[rows] * np.int64(G) + self.group[keep[1]])
         self.group_indptr, self.group_indices, position = csr_pattern(
             np.concatenate(keys) if keys else np.zeros(0, np.int64), G)
+        if G == n:  # groups of one dof: the group pattern is the pattern
+            self.indptr, self.indices, self.nnz = self.group_indptr, self.group_indices, self.group_indices.size
+            self.offset = None  # of every group entry: 0
+            self.scatters = self._scatters(maps, firsts, position, keys)
+            return
         # each group entry (g, h): its first column within the dof rows of g, and their length
         width = size[self.group_indices]
         before = np.concatenate([[0], np.cumsum(width)])  # columns before each entry, all rows
@@ -113,16 +118,20 @@ class Pattern:
         self.indices = columns[np.repeat(row_start[self.group] - self.indptr[:-1], length)
                                + np.arange(nnz, dtype=index)]
         self.nnz = nnz
+        self.scatters = self._scatters(maps, firsts, position, keys)
+
+    def _scatters(self, maps, firsts, position, keys):
+        """The Scatter of each map from the positions of its group pairs."""
         sizes = [k.size for k in keys[:len(maps)]]
-        self.scatters = [Scatter(self, D, f, p) for D, f, p in
-                         zip(maps, firsts, np.split(position[:sum(sizes)], np.cumsum(sizes)[:-1]))]
+        return [Scatter(self, D, f, p) for D, f, p in
+                zip(maps, firsts, np.split(position[:sum(sizes)], np.cumsum(sizes)[:-1]))]
 
     @property
     def nbytes(self):
         """Bytes kept: the CSR pattern, its groups and the scatters."""
-        return sum(a.nbytes for a in (self.indptr, self.indices, self.group, self.start, self.offset,
-                                      self.group_indptr, self.group_indices)) \
-            + sum(s.nbytes for s in self.scatters)
+        kept = {id(a): a for a in (self.indptr, self.indices, self.group, self.start, self.offset,
+                                   self.group_indptr, self.group_indices) if a is not None}
+        return sum(a.nbytes for a in kept.values()) + sum(s.nbytes for s in self.scatters)
 
     def _pair_keys(self, D, first):
         """row * G + column of the group pairs of every element of the map D, (E, r, r) raveled."""
@@ -153,8 +162,12 @@ class Scatter:
         self.run = np.repeat(np.arange(first.size), np.diff(np.append(first, k)))  # of each column
         self.shift = (np.arange(k) - first[self.run]).astype(index)  # column within its run
         lead = D[:, first]
-        self.P = (pattern.indptr[lead][:, :, None] + pattern.offset[position.reshape(E, first.size, first.size)]
-                  + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(index)
+        position = position.reshape(E, first.size, first.size)
+        if pattern.offset is None:  # groups of one dof: the group pattern's positions are these
+            self.P = position.astype(index)  # (a copy: not a view that keeps all maps' positions)
+        else:
+            self.P = (pattern.indptr[lead][:, :, None] + pattern.offset[position]
+                      + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(index)
         self.stride = None if first.size == k else \
             (pattern.indptr[lead + 1] - pattern.indptr[lead]).astype(index)  # None: runs of one column
 
