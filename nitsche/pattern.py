@@ -67,7 +67,7 @@ def dof_groups(maps, n):
     joined[:-1] &= held[:-1] & held[1:]
     starts = np.ones(n, bool)
     starts[1:] = ~joined[:-1]
-    return np.cumsum(starts) - 1
+    return (np.cumsum(starts) - 1).astype(index_type(n))
 
 
 def runs(D, group):
@@ -88,7 +88,7 @@ class Pattern:
         self.n = n
         self.group = dof_groups(maps, n)
         G = int(self.group[-1]) + 1 if n else 0
-        self.start = np.flatnonzero(np.diff(self.group, prepend=-1))  # first dof of each group
+        self.start = np.flatnonzero(np.diff(self.group, prepend=-1)).astype(self.group.dtype)  # of each group
         size = np.diff(np.append(self.start, n))
         firsts = [runs(D, self.group) for D in maps]
         keys = [self._pair_keys(D, f) for D, f in zip(maps, firsts)]
@@ -98,7 +98,8 @@ class Pattern:
         self.group_indptr, self.group_indices, position = csr_pattern(
             np.concatenate(keys) if keys else np.zeros(0, np.int64), G)
         if G == n:  # groups of one dof: the group pattern is the pattern
-            self.indptr, self.indices, self.nnz = self.group_indptr, self.group_indices, self.group_indices.size
+            self.indptr, self.indices = self.group_indptr, self.group_indices
+            self.nnz = self.indices.size
             self.offset = None  # of every group entry: 0
             self.scatters = self._scatters(maps, firsts, position, keys)
             return
