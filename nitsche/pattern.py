@@ -29,12 +29,23 @@ def index_type(*sizes):
     return np.int32 if max(sizes, default=0) < 2 ** 31 else np.int64
 
 
+def sort_with_order(keys):
+    """(sorted keys, the order that sorts them) of non-negative int64 keys, ties in their
+    order: one sort of each key with its index in the low bits where both fit in 63 bits
+    (np.sort of plain integers is much faster than np.argsort), else an argsort."""
+    bits = max(keys.size - 1, 0).bit_length()
+    if keys.size and int(keys.max()).bit_length() + bits <= 63:
+        packed = np.sort((keys << bits) | np.arange(keys.size))
+        return packed >> bits, packed & ((1 << bits) - 1)
+    order = np.argsort(keys, kind="stable")
+    return keys[order], order
+
+
 def csr_pattern(keys, n):
     """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
     row * n + column (repeated keys: one entry), and each key's position in it: one sort
     of the keys.  Index arrays are int32 while they fit."""
-    order = np.argsort(keys)
-    ordered = keys[order]
+    ordered, order = sort_with_order(keys)
     new = np.empty(ordered.size, bool)
     new[:1] = True
     np.not_equal(ordered[1:], ordered[:-1], out=new[1:])

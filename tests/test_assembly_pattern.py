@@ -7,7 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 from nitsche.cases import get
-from nitsche.pattern import Pattern, dof_groups, runs
+from nitsche.pattern import Pattern, dof_groups, runs, sort_with_order
 
 
 def entrywise(maps, n, blocks=None):
@@ -116,3 +116,12 @@ def test_a_re_paired_interface_scatters_within_or_into_a_grown_pattern():
         K = entrywise([t.global_dofs for t in a.terms], problem.ndofs,
                       [element_hessians(t, x) for t in a.terms])
         assert abs(H - K).max() <= 1e-13 * abs(K).max()
+
+
+@pytest.mark.parametrize("high", [50, 2 ** 60])
+def test_the_sort_with_order_equals_a_stable_argsort(high):
+    """Keys packed with their index (small keys) or argsorted (keys too large to pack)."""
+    keys = np.random.default_rng(1).integers(0, high, 1000).astype(np.int64)
+    ordered, order = sort_with_order(keys)
+    assert np.array_equal(order, np.argsort(keys, kind="stable"))
+    assert np.array_equal(ordered, np.sort(keys))
