@@ -35,8 +35,12 @@ def sort_with_order(keys):
     (np.sort of plain integers is much faster than np.argsort), else an argsort."""
     bits = max(keys.size - 1, 0).bit_length()
     if keys.size and int(keys.max()).bit_length() + bits <= 63:
-        packed = np.sort((keys << bits) | np.arange(keys.size))
-        return packed >> bits, packed & ((1 << bits) - 1)
+        packed = keys << bits
+        packed |= np.arange(keys.size)
+        packed.sort()
+        ordered = packed >> bits
+        packed &= (1 << bits) - 1
+        return ordered, packed
     order = np.argsort(keys, kind="stable")
     return keys[order], order
 
