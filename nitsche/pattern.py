@@ -107,16 +107,18 @@ class Pattern:
         size = np.diff(np.append(self.start, n))
         firsts = [runs(D, self.group) for D in maps]
         keys = [self._pair_keys(D, f) for D, f in zip(maps, firsts)]
+        sizes = [k.size for k in keys]
         if keep is not None:
             rows = np.repeat(np.arange(n), np.diff(keep[0]))
             keys.append(self.group[rows] * np.int64(G) + self.group[keep[1]])
-        self.group_indptr, self.group_indices, position = csr_pattern(
-            np.concatenate(keys) if keys else np.zeros(0, np.int64), G)
+        keys = np.concatenate(keys) if keys else np.zeros(0, np.int64)  # one copy kept
+        self.group_indptr, self.group_indices, position = csr_pattern(keys, G)
+        del keys
         if G == n:  # groups of one dof: the group pattern is the pattern
             self.indptr, self.indices = self.group_indptr, self.group_indices
             self.nnz = self.indices.size
             self.offset = None  # of every group entry: 0
-            self.scatters = self._scatters(maps, firsts, position, keys)
+            self.scatters = self._scatters(maps, firsts, position, sizes)
             return
         # each group entry (g, h): its first column within the dof rows of g, and their length
         width = size[self.group_indices]
@@ -134,11 +136,10 @@ class Pattern:
         self.indices = columns[np.repeat(row_start[self.group] - self.indptr[:-1], length)
                                + np.arange(nnz, dtype=index)]
         self.nnz = nnz
-        self.scatters = self._scatters(maps, firsts, position, keys)
+        self.scatters = self._scatters(maps, firsts, position, sizes)
 
-    def _scatters(self, maps, firsts, position, keys):
-        """The Scatter of each map from the positions of its group pairs."""
-        sizes = [k.size for k in keys[:len(maps)]]
+    def _scatters(self, maps, firsts, position, sizes):
+        """The Scatter of each map from the positions of its group pairs (sizes of each)."""
         return [Scatter(self, D, f, p) for D, f, p in
                 zip(maps, firsts, np.split(position[:sum(sizes)], np.cumsum(sizes)[:-1]))]
 
