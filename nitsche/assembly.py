@@ -597,24 +597,16 @@ class Assembler:
         return False
 
     def _quadratic(self, t, scatter):
-        """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""
+        """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once, kernel
+        call by kernel call (no array of all of its element Hessians)."""
         if id(t) not in self._quadratics:
-            E, g, data = self._add(t, scatter, np.zeros(self.ndofs), True)
+            E, g, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
+            for s, (e, ge, H) in t.calls("full", np.zeros(self.ndofs)):
+                E += float(e.sum())
+                np.add.at(g, t.global_dofs[s:s + len(ge)], ge)
+                scatter.add(data, H, s)
             self._quadratics[id(t)] = (E, g, data, self.matrix(data))
         return self._quadratics[id(t)]
-
-    def _add(self, t, scatter, x, hessian, grad=None, data=None):
-        """A term's energy at x, with its gradient and Hessian data added to grad and data
-        (new arrays if None), kernel call by kernel call (no array of all element matrices)."""
-        E = 0.0
-        grad = np.zeros(self.ndofs) if grad is None else grad
-        data = np.zeros(self.nnz) if hessian and data is None else data
-        for s, out in t.calls("full" if hessian else "gradient", x):
-            E += float(out[0].sum())
-            np.add.at(grad, t.global_dofs[s:s + len(out[1])], out[1])
-            if hessian:
-                scatter.add(data, out[2], s)
-        return E, grad, data
 
     def energy(self, x, terms=None):
         E = 0.0
@@ -644,7 +636,11 @@ class Assembler:
                 if hessian:
                     data += d
                 continue
-            E += self._add(t, scatter, x, hessian, grad, data)[0]
+            out = t.run("full" if hessian else "gradient", x)
+            E += float(out[0].sum())
+            grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
+            if hessian:
+                scatter.add(data, out[2])
         return E, grad, data
 
     def gradient(self, x, terms=None):

@@ -203,9 +203,13 @@ class Scatter:
         return P
 
     def add(self, data, H, start=0):
-        """data += the element matrices H (e, k, k) of the elements start, start + 1, ...,
-        in chunks of elements."""
+        """data += the element matrices H (e, k, k) of the elements start, start + 1, ...:
+        by one bincount for all elements with kept positions (runs of one column), else in
+        chunks of elements."""
         e, k = H.shape[:2]
+        if self.stride is None and e == len(self.P):
+            data += np.bincount(self.P.ravel(), weights=H.ravel(), minlength=data.size)
+            return
         step = max(1, CHUNK // (k * k))
         for s in range(0, e, step):
             np.add.at(data, self.positions(slice(start + s, start + min(s + step, e))).ravel(),
