@@ -1,12 +1,15 @@
 """3D: the memory of the assembly data against that of the linear solver, one level.
 
 For a 3D case at one level (default: membrane-solid, cube of trilinear hexahedra, vector
-Q1, plus a Q1 membrane), prints the bytes held by
+Q1, plus a Q1 membrane; --set cells=tet: P1 tetrahedra and triangles), prints the bytes
+held by
   - the fields' scikit-fem bases held (dof_basis: one point per cell; a full basis with
     the basis functions at every quadrature point of every cell only if one was built),
   - the terms' assembly data: tabulations (or reference tabulations and inverse Jacobians),
     weights, points, normals, local-to-global maps, the element parts of quadratic terms,
-  - the assembler's sparsity pattern and scatter maps,
+  - the assembler's sparsity pattern and scatter maps (nitsche.pattern: with its groups),
+  - the quadratic terms' assembled matrices (their data and constant gradient; the
+    index arrays are the pattern's),
   - the Newton matrix (free-free block, CSR),
 against the linear solver of the first Newton matrix: the CHOLMOD factor (nnz(L) x 12
 bytes: values and row indices) or the smoothed-aggregation AMG hierarchy (the operators,
@@ -14,6 +17,7 @@ prolongators and restrictors of every level), and the process's peak memory (VmH
 Writes benchmarks/results/memory_3d.json (one row per run, appended).
 
     python benchmarks/memory_3d.py --case membrane-solid --level 2 --solver amg
+    python benchmarks/memory_3d.py --level 3 --set cells=tet --solver amg
 """
 import argparse
 import json
@@ -52,11 +56,17 @@ def basis_bytes(basis):
 
 
 def term_bytes(t):
-    """Bytes of a term's tabulations and per-point data (before a quadratic term's first
-    assembly releases them), or of its element parts (after)."""
+    """Bytes of a term's tabulations, per-point data and local-to-global maps (kept: a
+    quadratic term's element Hessians are computed anew where needed, not kept)."""
     arrays = list(t.T or []) + list(getattr(t, "J", None) or []) + [t.W, t.x, t.n, t.h, t.alpha0]
-    arrays += [t.global_dofs] + list(t.dofs) + list(t.field_dofs) + list(getattr(t, "_parts", ()))
+    arrays += [t.global_dofs] + list(t.dofs) + list(t.field_dofs)
     return nbytes(*arrays)
+
+
+def peak_mb():
+    """The process's peak resident memory so far (VmHWM), MB."""
+    with open("/proc/self/status") as fh:
+        return next(int(line.split()[1]) for line in fh if line.startswith("VmHWM")) / 1024
 
 
 def main():
@@ -78,6 +88,7 @@ def main():
     t0 = time.perf_counter()
     _, _, A = problem.newton_system(x)
     assembly = time.perf_counter() - t0
+    assembly_peak = peak_mb()
     row = dict(case=args.case, level=args.level, parameters=vars(p), unknowns=int(problem.free.size),
                setup_seconds=setup, first_assembly_seconds=assembly,
                field_bases=sum(basis_bytes(vars(f).get("dof_basis") or f.basis)  # (older: f.basis)
@@ -86,10 +97,9 @@ def main():
                terms=terms, terms_after_first_assembly={f"{i}: {t.label}": term_bytes(t)
                                                         for i, t in enumerate(a.terms)},
                value_terms=sum(term_bytes(t) for t in problem.value_terms),
-               pattern=nbytes(a.indices, a.indptr, *a.scatter),
-               quadratic_matrices=sum(nbytes(g0, d, K.data, K.indices, K.indptr)
-                                      for (_, g0, d, K) in a._quadratics.values()),
-               newton_matrix=nbytes(A.data, A.indices, A.indptr))
+               pattern=a.pattern.nbytes if hasattr(a, "pattern") else nbytes(a.indices, a.indptr, *a.scatter),
+               quadratic_matrices=sum(nbytes(g0, d) for (_, g0, d, K) in a._quadratics.values()),
+               newton_matrix=nbytes(A.data, A.indices, A.indptr), peak_assembly_mb=assembly_peak)
     row["assembly_data"] = sum(row["terms"].values()) + row["pattern"]
     if args.solver in ("cholmod", "both"):
         from sksparse.cholmod import analyze
@@ -110,11 +120,11 @@ def main():
         row["amg_hierarchy"] = sum(nbytes(M.data, M.indices, M.indptr) for lvl in amg.ml.levels
                                    for M in (getattr(lvl, k, None) for k in ("A", "P", "R"))
                                    if M is not None and hasattr(M, "data"))
-    with open("/proc/self/status") as fh:
-        row["peak_mb"] = next(int(line.split()[1]) for line in fh if line.startswith("VmHWM")) / 1024
+    row["peak_mb"] = peak_mb()
     mb = lambda b: f"{b / 2**20:9.1f} MB"
     print(f"{args.case} level {args.level}: {row['unknowns']} unknowns, setup {setup:.1f} s, "
-          f"first assembly {assembly:.1f} s, peak {row['peak_mb']:.0f} MB")
+          f"first assembly {assembly:.1f} s, peak {row['peak_mb']:.0f} MB "
+          f"({assembly_peak:.0f} MB after the first assembly)")
     print(f"  fields' scikit-fem bases     {mb(row['field_bases'])}")
     for (k, v), after in zip(row["terms"].items(), row["terms_after_first_assembly"].values()):
         print(f"  term {k:<24}{mb(v)}  (after the first assembly {mb(after).strip()})")

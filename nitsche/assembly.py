@@ -17,7 +17,8 @@ d2w/dz2; an energy term is the case R = dw/dz.
 The pointwise derivatives come from jax.grad / jax.jacfwd, vmapped over all
 points and jitted on fixed-size chunks of elements, so one compiled kernel
 serves every Newton step and every refinement level.  The sparsity pattern and
-the scatter map into CSR storage are computed once per mesh.
+the scatter of element matrices into CSR storage (nitsche.pattern) are computed once
+per mesh.
 """
 import copy
 import hashlib
@@ -34,6 +35,7 @@ from jax.extend.core import Literal
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
+from .pattern import Pattern
 
 # Quadrature points per kernel call: small, large.  Each size is a kernel shape to load (or
 # compile) once per process; a nested chain loads the small set on its coarse levels and
@@ -364,14 +366,6 @@ class Term:
             self._coupling = _COMPILED[key]
         return self._coupling
 
-    def quadratic_parts(self):
-        """Energy, element gradients and element Hessians at x = 0 of a quadratic term,
-        computed once; the tabulations are released afterwards (they are not needed again)."""
-        if not hasattr(self, "_parts"):
-            self._parts = self.run("full", np.zeros(1 + max(int(d.max(initial=0)) for d in self.field_dofs)))
-            self.T = self.J = self.W = self.x = self.n = self.h = self.alpha0 = None
-        return self._parts
-
     def kernel(self, kind, chunk):
         """The compiled kernel of `chunk` elements: 'energy', 'gradient' (energy, gradient),
         'full' (energy, gradient, Hessian), 'jacobian' (per point) or 'values'."""
@@ -405,24 +399,29 @@ class Term:
         return [(s, large) for s in range(0, whole, large)] + \
             [(s, small) for s in range(whole, max(nel, whole + 1), small)]
 
-    def run(self, kind, x, elements=None):
-        """Apply a kernel to all elements (or to the given ones) for the global dof vector x;
-        each call's outputs are copied into arrays of all elements as they come (no list
-        of chunk outputs to concatenate: peak memory one copy plus one call's)."""
+    def calls(self, kind, x, elements=None):
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x,
+        call by call: yields (the first element of the call, its outputs without padding)."""
         us = [x[d] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
-        outs = None
         for s, chunk in self.blocks(nel):
             kern = self.kernel(kind, chunk)
             sl = slice(s, s + chunk) if elements is None else elements[s: s + chunk]
             Ts = [a if a.shape[0] == 1 else _pad(a[sl], chunk) for a in self.tables]
             rest = [_pad(a[sl], chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            got = [np.asarray(o) for o in kern(*Ts, *rest, self.parameter_data(chunk))]
+            out = kern(*Ts, *rest, self.parameter_data(chunk))
+            yield s, [np.asarray(o)[:max(0, min(chunk, nel - s))] for o in out]
+
+    def run(self, kind, x, elements=None):
+        """The kernel's outputs on all elements (or on the given ones): each call's outputs
+        copied into arrays of all elements as they come (peak: one copy plus one call's)."""
+        nel = self.nel if elements is None else len(elements)
+        outs = None
+        for s, got in self.calls(kind, x, elements):
             if outs is None:
                 outs = [np.empty((nel,) + o.shape[1:], o.dtype) for o in got]
-            n = min(chunk, nel - s)
             for out, o in zip(outs, got):
-                out[s:s + n] = o[:n]
+                out[s:s + len(o)] = o
         return outs
 
 
@@ -569,24 +568,6 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
             "values": values}[kind]
 
 
-def csr_pattern(keys, n):
-    """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
-    row * n + column (repeated keys: one entry), and each key's position in it (the
-    scatter map): one sort of the keys.  Index arrays are int32 while they fit."""
-    order = np.argsort(keys)
-    ordered = keys[order]
-    new = np.empty(ordered.size, bool)
-    new[:1] = True
-    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
-    rows, columns = np.divmod(ordered[new], n)
-    index = np.int32 if max(rows.size, n) < 2 ** 31 else np.int64
-    position = np.empty(keys.size, index)
-    position[order] = np.cumsum(new) - 1
-    indptr = np.zeros(n + 1, index)
-    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
-    return indptr, columns.astype(index), position
-
-
 class Assembler:
     """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms; residual
     terms add to the gradient (the residual) and Hessian (its Jacobian), not to the energy."""
@@ -595,64 +576,55 @@ class Assembler:
         self.terms, self.ndofs = terms, ndofs
         self._build_pattern()
 
-    @staticmethod
-    def _keys(dofs, ndofs):
-        """row * ndofs + col of every entry of the element matrices on dofs (E, k)."""
-        return (np.repeat(dofs, dofs.shape[1], axis=1) * np.int64(ndofs)
-                + np.tile(dofs, (1, dofs.shape[1]))).ravel()
-
     def _build_pattern(self, keep=None):
-        """The CSR pattern of all terms' element matrices (and the entries `keep`: sorted
-        keys of an earlier pattern, so that it only grows) and each term's scatter map."""
-        ndofs = self.ndofs
-        distinct = []  # terms on the same elements share their local-to-global map
+        """The CSR pattern of all terms' element matrices (and the entries `keep` = (indptr,
+        indices) of an earlier pattern, so that it only grows) and each term's Scatter;
+        terms on equal local-to-global maps share theirs."""
+        distinct = []
         for t in self.terms:
             if not any(d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs)
                        for d in distinct):
                 distinct.append(t.global_dofs)
-        keys = [self._keys(d, ndofs) for d in distinct]
-        counts = [k.size for k in keys]
-        self.indptr, self.indices, position = csr_pattern(
-            np.concatenate(keys + ([] if keep is None else [keep])), ndofs)
-        self.nnz = self.indices.size
-        self.sorted_keys = (np.repeat(np.arange(ndofs, dtype=np.int64), np.diff(self.indptr)) * ndofs
-                            + self.indices)
-        positions = np.split(position[:sum(counts)], np.cumsum(counts)[:-1])
-        self.scatter = [next(p for d, p in zip(distinct, positions) if d.shape == t.global_dofs.shape
-                             and np.array_equal(d, t.global_dofs)) for t in self.terms]
+        self.pattern = Pattern(distinct, self.ndofs, keep)
+        self.indptr, self.indices, self.nnz = self.pattern.indptr, self.pattern.indices, self.pattern.nnz
+        self.scatter = [next(s for d, s in zip(distinct, self.pattern.scatters)
+                             if d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs))
+                        for t in self.terms]
         self._quadratics = {}  # assembled on this pattern
 
     def refresh(self, terms):
         """After the given terms changed their global dofs (an interface paired anew): their
-        scatter maps, within the pattern if it holds their entries (returns False), else on a
+        scatters, within the pattern if it holds their entries (returns False), else on a
         pattern grown to hold them (returns True: the matrix structure changed)."""
         for t in terms:
-            keys = self._keys(t.global_dofs, self.ndofs)
-            pos = np.minimum(np.searchsorted(self.sorted_keys, keys), self.nnz - 1)
-            if not np.array_equal(self.sorted_keys[pos], keys):
-                self._build_pattern(keep=self.sorted_keys)
+            scatter = self.pattern.scatter(t.global_dofs)
+            if scatter is None:
+                self._build_pattern(keep=(self.indptr, self.indices))
                 return True
             for k, other in enumerate(self.terms):
                 if other is t:
-                    self.scatter[k] = pos
+                    self.scatter[k] = scatter
         return False
 
-    def _quadratic(self, t, idx):
-        """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once."""
+    def _quadratic(self, t, scatter):
+        """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once, kernel
+        call by kernel call (no array of all of its element Hessians)."""
         if id(t) not in self._quadratics:
-            e, g, H = t.quadratic_parts()
-            g0 = np.bincount(t.global_dofs.ravel(), weights=g.ravel(), minlength=self.ndofs)
-            data = np.bincount(idx, weights=H.ravel(), minlength=self.nnz)
-            self._quadratics[id(t)] = (float(e.sum()), g0, data, self.matrix(data))
+            E, g, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
+            for s, (e, ge, H) in t.calls("full", np.zeros(self.ndofs)):
+                E += float(e.sum())
+                np.add.at(g, t.global_dofs[s:s + len(ge)], ge)
+                scatter.add(data, H, s)
+            self._quadratics[id(t)] = (E, g, data, self.matrix(data))
         return self._quadratics[id(t)]
 
     def energy(self, x, terms=None):
         E = 0.0
-        for t, idx in zip(self.terms, self.scatter):
+        for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms or t.residual:
                 continue
             if t.is_quadratic:
-                E0, g0, _, K = self._quadratic(t, idx)
+                E0, g0, _, K = self._quadratic(t, scatter)
                 E += E0 + g0 @ x + 0.5 * x @ (K @ x)
             else:
                 E += float(t.run("energy", x)[0].sum())
@@ -663,11 +635,11 @@ class Assembler:
         unless asked).  Quadratic terms are assembled once and then applied as matrices."""
         E, grad = 0.0, np.zeros(self.ndofs)
         data = np.zeros(self.nnz) if hessian else None
-        for t, idx in zip(self.terms, self.scatter):
+        for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
                 continue
             if t.is_quadratic:
-                E0, g0, d, K = self._quadratic(t, idx)
+                E0, g0, d, K = self._quadratic(t, scatter)
                 Kx = K @ x
                 E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
                 grad = grad + g0 + Kx
@@ -678,7 +650,7 @@ class Assembler:
             E += float(out[0].sum())
             grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
             if hessian:
-                data += np.bincount(idx, weights=out[2].ravel(), minlength=self.nnz)
+                scatter.add(data, out[2])
         return E, grad, data
 
     def gradient(self, x, terms=None):

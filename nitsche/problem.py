@@ -534,11 +534,10 @@ def report_constraints(constraints, values, parts, alpha0, limits):
 
 def cell_hessians(term, x, cells):
     """The element Hessians of a cell term of the energy at x on the given cells of its mesh,
-    and their dofs (of a quadratic term: from all of its element Hessians, stored for the
-    Newton assembly); the term's cells (all, or a rank's) are sorted."""
+    and their dofs (computed anew: the assembly keeps a quadratic term's matrix, not its
+    element Hessians); the term's cells (all, or a rank's) are sorted."""
     e = np.searchsorted(term.cells, cells)
-    H = term.quadratic_parts()[2][e] if term.is_quadratic else term.run("full", x, e)[2]
-    return H, term.global_dofs[e]
+    return term.run("full", x, e)[2], term.global_dofs[e]
 
 
 def multiplier_jacobian(term, c, x):
