@@ -20,8 +20,9 @@ divided among the ranks; the meshes stay whole on every rank.
   values each step; the Newton systems are solved by a PETSc KSP;
 - the whole free vector is all-gathered for the result (once per solve); the minimum check
   at convergence is LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the
-  preconditioner and reductions of a few numbers); the constraint report is that of the
-  serial engine on the ranks' values gathered.
+  preconditioner and reductions of a few numbers); the constraint report is the serial
+  engine's (problem.report_constraints) on each rank's elements, combined from a few
+  numbers per rank (and alpha0 per element, for its medians).
 
 Newton itself is nitsche.newton.newton, unchanged but for the norms and dot products it
 asks of the problem: the same stopping test, line search and result; `ranks` is R.
@@ -176,20 +177,25 @@ class DistributedProblem:
         return "; ".join(dict.fromkeys(self.comm.allgather(self.local.non_finite(x))))
 
     def constraint_values(self, x):
-        """Problem.constraint_values of all ranks' elements (concatenated, rank after rank)."""
+        """Problem.constraint_values of all ranks' elements (concatenated, rank after rank):
+        every quadrature point's values on every rank (the report does not gather them)."""
         parts = self.comm.allgather(self.local.constraint_values(x))
         return {name: {k: None if parts[0][name][k] is None else
                        np.concatenate([p[name][k] for p in parts]) for k in parts[0][name]}
                 for name in parts[0]}
 
     def constraint_report(self, x):
-        """Problem.constraint_report on the gathered values (the same on every rank)."""
-        gathered = self.comm.allgather({n: (self.local.alpha0[n], self.local.limits[n])
-                                        for n in self.local.alpha0})
-        alpha0 = {n: np.concatenate([g[n][0] for g in gathered]) for n in gathered[0]}
-        limits = {n: np.concatenate([g[n][1] for g in gathered]) for n in gathered[0]}
-        return report_constraints(self.local.constraints, self.constraint_values(x),
-                                  self.local.split(x), alpha0, limits)
+        """Problem.constraint_report of the whole problem, the same on every rank: each rank's
+        counts, sums, maxima and most violated point over its elements (with the fields'
+        size max |u| on its held dofs) gathered and combined (problem.report_constraints);
+        alpha0 and its limits per element are gathered for their medians."""
+        held = np.zeros_like(x)
+        held[self.local.fixed] = x[self.local.fixed]
+        on = self.local.free[self.layout.held]
+        held[on] = x[on]
+        return report_constraints(self.local.constraints, self.local.constraint_values(x),
+                                  self.local.split(held), self.local.alpha0, self.local.limits,
+                                  gather=self.comm.allgather)
 
     def minimize(self, x0=None, solver="auto", **options):
         """Newton's method (nitsche.newton.newton) with a PETSc solver: 'gamg' (CG + GAMG),

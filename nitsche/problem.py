@@ -475,7 +475,7 @@ SINGULAR = ("the energy Hessian at the initial guess is singular or indefinite w
 FIX = "the supports (Dirichlet conditions) or the initial guess"
 
 
-def report_constraints(constraints, values, parts, alpha0, limits):
+def report_constraints(constraints, values, parts, alpha0, limits, gather=None):
     """Per constraint (values: Problem.constraint_values, parts: the fields' dofs, alpha0 and
     limits per element): kind, alpha0, active points and contact measure, the largest
     violation v (of g >= 0, or |g| for g = 0) and the multiplier lambda_N; and whether
@@ -488,47 +488,84 @@ def report_constraints(constraints, values, parts, alpha0, limits):
     lambda_N ~ v / alpha -> oo.  Flagged: at the most violated point
         v > violation_limit = min(1/2, 50 alpha0_T) U   and   v > 2 alpha |lambda(u_h)|
     (the second: the violation is not the consistency term alpha (lambda - lambda_N)
-    with lambda_N ~ lambda; it also keeps round-off of a zero solution unflagged)."""
-    rep = {}
-    for c in constraints:
-        v = values[c.name]
-        vector = np.ndim(v["g"]) == 3
-        g, lam, lam_n = (v[k][..., 0] if vector else v[k] for k in ("g", "lam", "multiplier"))
-        if c.inequality:  # violation max(-g, 0): largest where g is smallest (first point if none)
-            active = lam_n > 0
-            worst = np.unravel_index(np.argmin(g), g.shape)
-            worst = worst if g[worst] < 0 else (0,) * g.ndim
-            viol = float(np.maximum(-g[worst], 0.0))
-        else:  # violation |g|
-            active = np.zeros_like(g, bool)
-            worst = np.unravel_index(np.argmax(np.abs(g)), g.shape)
-            viol = float(np.abs(g[worst]))
-        size = max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
-                   default=0.0)
-        a, limit_c = alpha0[c.name], limits[c.name]
-        limit = min(0.5, 50 * float(np.broadcast_to(a, g.shape[:1])[worst[0]])) * size
-        alpha_w, lam_w = (np.broadcast_to(b, g.shape)[worst] for b in (v["alpha"], lam))
-        consistency = 2 * float(np.abs(alpha_w * lam_w))
-        rep[c.name] = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
-                           alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
-                           alpha0_limit_min=float(limit_c.min()),
-                           alpha0_limit_median=float(np.median(limit_c)),
-                           alpha0_limit_max=float(limit_c.max()),
-                           active_count=int(active.sum()),
-                           contact_measure=float((v["W"] * active).sum()),
-                           max_violation=viol,
-                           peak_multiplier=float(np.max(lam_n)),
-                           total_multiplier=float((v["W"] * lam_n).sum()),
-                           violation_limit=limit,
-                           infeasible=bool(viol > limit and viol > consistency))
-        if c.projection.frictional:
-            traction = v["multiplier"][..., 1:]
-            rep[c.name].update(
-                theta=c.theta, stick_measure=float((v["W"] * (v["state"] == 1)).sum()),
-                slip_measure=float((v["W"] * (v["state"] == 2)).sum()),
-                separation_measure=float((v["W"] * (v["state"] == 0)).sum()),
-                peak_tangential_traction=float(np.linalg.norm(traction, axis=-1).max()),
-                total_tangential_traction=(v["W"][..., None] * traction).sum((0, 1)).tolist())
+    with lambda_N ~ lambda; it also keeps round-off of a zero solution unflagged).
+    Where values, parts, alpha0 and limits are one MPI rank's (its elements, its held dofs),
+    gather (e.g. comm.allgather) returns every rank's constraint_statistics, rank after
+    rank, and the report is the whole problem's: sums, maxima and the first most violated
+    point of the ranks' statistics (constraint_summary)."""
+    gather = gather or (lambda statistics: [statistics])
+    return {c.name: constraint_summary(c, gather(constraint_statistics(
+        c, values[c.name], parts, alpha0[c.name], limits[c.name]))) for c in constraints}
+
+
+def constraint_statistics(c, v, parts, alpha0, limits):
+    """What report_constraints needs of constraint c's values v on some of its elements (one
+    rank's; alpha0 and limits theirs, parts the dofs they know): the fields' size
+    max |u|, alpha0 and limits, and where there are elements the counts, sums and maxima
+    over their points and their most violated point's violation, alpha0 and consistency
+    term 2 alpha |lambda| (the smallest g where g < 0 somewhere, else the first point;
+    the largest |g| for g = 0)."""
+    s = dict(size=max([float(np.abs(parts[n]).max(initial=0.0)) for n in c.gap_names if n in parts],
+                      default=0.0), alpha0=np.asarray(alpha0, float), limits=np.asarray(limits, float))
+    vector = np.ndim(v["g"]) == 3
+    g, lam, lam_n = (v[k][..., 0] if vector else v[k] for k in ("g", "lam", "multiplier"))
+    if g.size == 0:
+        return s
+    if c.inequality:  # violation max(-g, 0): largest where g is smallest (first point if none)
+        active = lam_n > 0
+        worst = np.unravel_index(np.argmin(g), g.shape)
+        worst = worst if g[worst] < 0 else (0,) * g.ndim
+        viol = float(np.maximum(-g[worst], 0.0))
+    else:  # violation |g|
+        active = np.zeros_like(g, bool)
+        worst = np.unravel_index(np.argmax(np.abs(g)), g.shape)
+        viol = float(np.abs(g[worst]))
+    alpha_w, lam_w = (np.broadcast_to(b, g.shape)[worst] for b in (v["alpha"], lam))
+    s.update(violation=viol, worst_alpha0=float(np.broadcast_to(alpha0, g.shape[:1])[worst[0]]),
+             consistency=2 * float(np.abs(alpha_w * lam_w)),
+             active_count=int(active.sum()), contact_measure=float((v["W"] * active).sum()),
+             peak_multiplier=float(np.max(lam_n)), total_multiplier=float((v["W"] * lam_n).sum()))
+    if c.projection.frictional:
+        traction = v["multiplier"][..., 1:]
+        s.update(stick_measure=float((v["W"] * (v["state"] == 1)).sum()),
+                 slip_measure=float((v["W"] * (v["state"] == 2)).sum()),
+                 separation_measure=float((v["W"] * (v["state"] == 0)).sum()),
+                 peak_tangential_traction=float(np.linalg.norm(traction, axis=-1).max()),
+                 total_tangential_traction=(v["W"][..., None] * traction).sum((0, 1)))
+    return s
+
+
+def constraint_summary(c, pieces):
+    """report_constraints' entry of constraint c from the constraint_statistics of its
+    elements' pieces (rank after rank): counts and measures summed, maxima over the pieces,
+    the most violated point the first piece's of the largest violation, alpha0's and the
+    limits' statistics over all elements, the size the largest."""
+    held = [p for p in pieces if "violation" in p]
+    if not held:
+        raise ValueError(f"constraint '{c.name}' has no elements: check its measure (the "
+                         "boundary facets, interface or cells it is integrated over)")
+    w = max(held, key=lambda p: p["violation"])  # the first of the largest
+    a, limit_c = (np.concatenate([p[k] for p in pieces]) for k in ("alpha0", "limits"))
+    viol, size = w["violation"], max(p["size"] for p in pieces)
+    limit = min(0.5, 50 * w["worst_alpha0"]) * size
+
+    def total(k):
+        return sum(p[k] for p in held)
+
+    rep = dict(kind=c.kind, alpha0=float(a.min()), alpha0_min=float(a.min()),
+               alpha0_median=float(np.median(a)), alpha0_max=float(a.max()),
+               alpha0_limit_min=float(limit_c.min()),
+               alpha0_limit_median=float(np.median(limit_c)),
+               alpha0_limit_max=float(limit_c.max()),
+               active_count=total("active_count"), contact_measure=total("contact_measure"),
+               max_violation=viol, peak_multiplier=max(p["peak_multiplier"] for p in held),
+               total_multiplier=total("total_multiplier"), violation_limit=limit,
+               infeasible=bool(viol > limit and viol > w["consistency"]))
+    if c.projection.frictional:
+        rep.update(theta=c.theta, stick_measure=total("stick_measure"),
+                   slip_measure=total("slip_measure"), separation_measure=total("separation_measure"),
+                   peak_tangential_traction=max(p["peak_tangential_traction"] for p in held),
+                   total_tangential_traction=total("total_tangential_traction").tolist())
     return rep
 
 

@@ -1,6 +1,6 @@
 """Solve shipped cases with nitsche.distributed on the ranks of mpirun (for
 test_distributed.py): python mpi_solve.py SOLVER CASE:LEVEL ...; rank 0 prints one JSON line
-per case (energy, Newton iterations, convergence, ranks)."""
+per case (energy, Newton iterations, convergence, ranks, the constraint report)."""
 import json
 import sys
 
@@ -19,7 +19,8 @@ def main(solver, specs):
             print(json.dumps(dict(case=name, energy=r.energy, iterations=r.iterations,
                                   converged=r.converged, ranks=r.ranks, solver=r.solver,
                                   stats=r.solver_stats, active_count=r.active_count,
-                                  max_violation=r.max_violation)), flush=True)
+                                  max_violation=r.max_violation,
+                                  constraints=r.constraints)), flush=True)
 
 
 if __name__ == "__main__":

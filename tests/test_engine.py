@@ -292,3 +292,37 @@ def test_constraint_report_locates_the_largest_violation_as_the_full_arrays_did(
     consistency = 2 * float(np.abs((alpha * lam)[worst]))
     assert rep["max_violation"] == float(violation[worst]) and rep["violation_limit"] == limit
     assert rep["infeasible"] == bool(violation[worst] > limit and violation[worst] > consistency)
+
+
+@pytest.mark.parametrize("inequality", [True, False])
+@pytest.mark.parametrize("shift", [-0.3, 0.0, 0.5])  # violated somewhere, touching, nowhere
+def test_constraint_report_from_pieces_equals_the_whole_report(inequality, shift):
+    """report_constraints on pieces of the elements (as MPI ranks hold them: one without
+    elements, each knowing part of the dofs) with their statistics gathered equals the
+    report on all elements: counts, maxima, the most violated point, its limit and flag
+    exactly, the sums to 1e-14, alpha0's statistics exactly."""
+    from types import SimpleNamespace
+    from nitsche.problem import constraint_statistics, report_constraints
+    rng = np.random.default_rng(7)
+    g = rng.random((40, 6)) + shift
+    g[3, 2] = g[31, 4] = g.min() if shift < 0 else g[3, 2]  # a tie across pieces: the first wins
+    lam, alpha, W = rng.normal(size=(40, 6)), rng.random((40, 6)) * 1e-2, rng.random((40, 6))
+    values = dict(g=g, lam=lam, alpha=alpha, multiplier=np.maximum(lam - g / alpha, 0), W=W)
+    c = SimpleNamespace(name="c", kind="inequality" if inequality else "equality",
+                        inequality=inequality, gap_names=["u"],
+                        projection=SimpleNamespace(frictional=False))
+    alpha0, limits, u = rng.random(40) * 1e-2, rng.random(40), rng.normal(size=10)
+    whole = report_constraints([c], {"c": values}, {"u": u}, {"c": alpha0}, {"c": limits})["c"]
+    cuts = [slice(0, 0), slice(0, 17), slice(17, 40)]  # rank 0 without elements
+    known = [u * (np.arange(10) < 3), u * (np.arange(10) >= 3), u * (np.arange(10) >= 8)]
+    pieces = [constraint_statistics(c, {k: a[s] for k, a in values.items()}, {"u": uk},
+                                    alpha0[s], limits[s]) for s, uk in zip(cuts, known)]
+    for rank, (s, uk) in enumerate(zip(cuts, known)):
+        part = report_constraints([c], {"c": {k: a[s] for k, a in values.items()}}, {"u": uk},
+                                  {"c": alpha0[s]}, {"c": limits[s]}, gather=lambda _: pieces)["c"]
+        assert part.keys() == whole.keys()
+        for k, v in whole.items():
+            assert part[k] == (pytest.approx(v, rel=1e-14) if k in ("contact_measure", "total_multiplier")
+                               else v), (rank, k)
+    if inequality and shift < 0:
+        assert whole["active_count"] > 0 and whole["max_violation"] == -g[3, 2]

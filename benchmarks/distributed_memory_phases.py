@@ -1,0 +1,57 @@
+"""Where the distributed solve reaches its peak resident memory on each rank, phase by phase:
+under `mpirun -n R python benchmarks/distributed_memory_phases.py CASE LEVEL [SOLVER]`, a
+thread per rank samples VmRSS every 5 ms (benchmarks/memory_phases.py's sampler and labels)
+while each rank builds its part of the problem and Newton solves from zero; rank 0 prints one
+JSON line: per rank, VmHWM after the set-up and after the solve, and the highest sample of
+each phase (set-up; Newton: evaluate, matrix values, KSP solve, line search, minimum check,
+constraint report, the result's all-gather), highest first.  A diagnostic: the seconds are
+not timings."""
+import json
+import os
+import sys
+import threading
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from memory_phases import label, sampler, samples, stack, status  # noqa: E402
+
+
+def main(name, level, solver):
+    threading.Thread(target=sampler, daemon=True).start()
+    from petsc4py import PETSc  # noqa: F401 (its memory counted in the imports)
+    from nitsche import assembly, cases, distributed, newton
+    for owner, fn, what in [
+            (distributed.DistributedProblem, "build", "set-up"), (newton, "newton", "newton"),
+            (assembly.Assembler, "evaluate", "evaluate"),
+            (distributed.Layout, "assembled", "gradient sum"),
+            (distributed.Layout, "set_values", "matrix values"),
+            (distributed.KrylovSolver, "prepare", "near-nullspace"),
+            (distributed.KrylovSolver, "solve", "KSP solve"),
+            (distributed.DistributedMatrix, "__matmul__", "A v"),
+            (newton, "energy_search", "line search"),
+            (distributed.KrylovSolver, "is_positive_definite", "minimum check"),
+            (distributed.DistributedProblem, "constraint_report", "constraint report"),
+            (distributed.DistributedProblem, "whole", "all-gather")]:
+        label(owner, fn, what)
+    case = cases.get(name)
+    p = case.parameters({})
+    stack[:] = ["run"]
+    imports = status("VmHWM")
+    problem = distributed.DistributedProblem.build(lambda: case.problem(level, case.degrees[0], p))
+    after_setup = status("VmHWM")
+    result = problem.minimize(solver=solver)
+    after_solve = status("VmHWM")
+    peaks = {}
+    for _, rss, where in list(samples):
+        peaks[where] = max(rss, peaks.get(where, 0.0))
+    row = dict(ranks=problem.ranks, imports_mib=round(imports), setup_mib=round(after_setup),
+               solve_mib=round(after_solve),
+               phases={w: round(r) for w, r in sorted(peaks.items(), key=lambda kv: -kv[1])})
+    rows = problem.comm.gather(row, root=0)
+    if problem.rank == 0:
+        print(json.dumps(dict(case=name, level=level, solver=solver, unknowns=int(problem.free.size),
+                              iterations=result.iterations, energy=result.energy,
+                              load=os.getloadavg(), rows=rows)), flush=True)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1], int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "gamg")
