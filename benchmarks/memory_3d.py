@@ -48,8 +48,10 @@ def nbytes(*arrays):
 
 
 def basis_bytes(basis):
-    arrays = [basis.dx, basis.X, basis.W]
-    for functions in basis.basis:
+    """Bytes of a scikit-fem basis's weights and tabulated basis functions (a DofBasis's
+    only once something read them)."""
+    arrays = [vars(basis).get("dx"), basis.X, basis.W]
+    for functions in vars(basis).get("basis", ()):
         for df in functions:
             arrays += [np.asarray(f) for f in df.astuple if f is not None]
     return nbytes(*arrays)
