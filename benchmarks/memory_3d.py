@@ -100,7 +100,8 @@ def main():
                                                         for i, t in enumerate(a.terms)},
                value_terms=sum(term_bytes(t) for t in problem.value_terms),
                pattern=a.pattern.nbytes if hasattr(a, "pattern") else nbytes(a.indices, a.indptr, *a.scatter),
-               quadratic_matrices=sum(nbytes(g0, d) for (_, g0, d, K) in a._quadratics.values()),
+               quadratic_matrices=sum(nbytes(g0, K.data, own) + (0 if own is None else nbytes(K.indices, K.indptr))
+                                      for (_, g0, K, own) in a._quadratics.values()),
                newton_matrix=nbytes(A.data, A.indices, A.indptr), peak_assembly_mb=assembly_peak)
     row["assembly_data"] = sum(row["terms"].values()) + row["pattern"]
     if args.solver in ("cholmod", "both"):
