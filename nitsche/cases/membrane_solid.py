@@ -96,15 +96,16 @@ CHUNK = 2 ** 14  # cells per block of the post-processing (bounds its temporarie
 
 
 def stress(field, u, E, nu, cells):
-    """sigma = 2 mu eps + lam tr(eps) I, eps = sym grad u, of a 3D vector field at the points
-    of the quadrature of order 2 maxdeg (scikit-fem's default) of the given cells, shape
-    (3, 3, cells, points); grad u = sum_k u_k grad phi_k."""
+    """sigma = 2 mu eps + lam tr(eps) I, eps = sym grad u, of a 3D vector field (ElementVector:
+    dof j d + i is the scalar function phi_j in component i) at the points of the quadrature
+    of order 2 maxdeg (scikit-fem's default) of the given cells, shape (3, 3, cells, points);
+    grad u_i = sum_j u_{j d + i} grad phi_j."""
     b, element = field.dof_basis, field.element
+    d = element.dim
     X = get_quadrature(field.mesh.refdom, 2 * element.maxdeg)[0]
-    Gr = 0.0
-    for k in range(b.Nbfun):
-        Gr = Gr + u[b.element_dofs[k, cells]][:, None] * \
-            np.asarray(element.gbasis(b.mapping, X, k, tind=cells)[0].grad)
+    grads = [np.asarray(element.elem.gbasis(b.mapping, X, j, tind=cells)[0].grad) for j in range(b.Nbfun // d)]
+    Gr = np.stack([sum(u[b.element_dofs[j * d + i, cells]][:, None] * g for j, g in enumerate(grads))
+                   for i in range(d)])
     mu, lam = lame(E, nu)
     eps = 0.5 * (Gr + Gr.transpose(1, 0, 2, 3))
     tr = np.trace(eps)
