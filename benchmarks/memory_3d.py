@@ -48,8 +48,10 @@ def nbytes(*arrays):
 
 
 def basis_bytes(basis):
-    arrays = [basis.dx, basis.X, basis.W]
-    for functions in basis.basis:
+    """Bytes of a scikit-fem basis's weights and tabulated basis functions (a DofBasis's
+    only once something read them)."""
+    arrays = [vars(basis).get("dx"), basis.X, basis.W]
+    for functions in vars(basis).get("basis", ()):
         for df in functions:
             arrays += [np.asarray(f) for f in df.astuple if f is not None]
     return nbytes(*arrays)
@@ -98,7 +100,8 @@ def main():
                                                         for i, t in enumerate(a.terms)},
                value_terms=sum(term_bytes(t) for t in problem.value_terms),
                pattern=a.pattern.nbytes if hasattr(a, "pattern") else nbytes(a.indices, a.indptr, *a.scatter),
-               quadratic_matrices=sum(nbytes(g0, d) for (_, g0, d, K) in a._quadratics.values()),
+               quadratic_matrices=sum(nbytes(g0, K.data, own) + (0 if own is None else nbytes(K.indices, K.indptr))
+                                      for (_, g0, K, own) in a._quadratics.values()),
                newton_matrix=nbytes(A.data, A.indices, A.indptr), peak_assembly_mb=assembly_peak)
     row["assembly_data"] = sum(row["terms"].values()) + row["pattern"]
     if args.solver in ("cholmod", "both"):

@@ -607,15 +607,27 @@ class Assembler:
         return False
 
     def _quadratic(self, t, scatter):
-        """(E(0), grad(0), Hessian data, Hessian) of a quadratic term, assembled once, kernel
-        call by kernel call (no array of all of its element Hessians)."""
+        """(E(0), grad(0), Hessian K, the positions of K's entries in the pattern's data) of a
+        quadratic term, assembled once, kernel call by kernel call (no array of all of its
+        element Hessians).  A term on a small part of the pattern (a membrane beside a solid)
+        keeps K on its non-zero entries only, where that takes less memory than one value per
+        pattern entry (8 bytes each against 16: value, column, position); positions None: K
+        has the pattern's own structure and data."""
         if id(t) not in self._quadratics:
             E, g, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
             for s, (e, ge, H) in t.calls("full", np.zeros(self.ndofs)):
                 E += float(e.sum())
                 np.add.at(g, t.global_dofs[s:s + len(ge)], ge)
                 scatter.add(data, H, s)
-            self._quadratics[id(t)] = (E, g, data, self.matrix(data))
+            own = np.flatnonzero(data)
+            if 2 * own.size < self.nnz:
+                index = np.int32 if self.nnz < 2 ** 31 else np.int64
+                own = own.astype(index)
+                K = sp.csr_matrix((data[own], self.indices[own], np.searchsorted(own, self.indptr).astype(index)),
+                                  shape=(self.ndofs, self.ndofs))
+            else:
+                own, K = None, self.matrix(data)
+            self._quadratics[id(t)] = (E, g, K, own)
         return self._quadratics[id(t)]
 
     def energy(self, x, terms=None):
@@ -624,7 +636,7 @@ class Assembler:
             if terms is not None and t not in terms or t.residual:
                 continue
             if t.is_quadratic:
-                E0, g0, _, K = self._quadratic(t, scatter)
+                E0, g0, K, _ = self._quadratic(t, scatter)
                 E += E0 + g0 @ x + 0.5 * x @ (K @ x)
             else:
                 E += float(t.run("energy", x)[0].sum())
@@ -639,12 +651,14 @@ class Assembler:
             if terms is not None and t not in terms:
                 continue
             if t.is_quadratic:
-                E0, g0, d, K = self._quadratic(t, scatter)
+                E0, g0, K, positions = self._quadratic(t, scatter)
                 Kx = K @ x
                 E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
                 grad = grad + g0 + Kx
-                if hessian:
-                    data += d
+                if hessian and positions is None:
+                    data += K.data
+                elif hessian:
+                    data[positions] += K.data
                 continue
             out = t.run("full" if hessian else "gradient", x)
             E += float(out[0].sum())

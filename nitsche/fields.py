@@ -1,8 +1,10 @@
 """Fields: named unknowns, each on its own scikit-fem basis."""
 import weakref
+from functools import cached_property
 
 import numpy as np
-from skfem import Basis, ElementTriP1, ElementVector
+from skfem import Basis, CellBasis, ElementTriP1, ElementVector
+from skfem.assembly.basis.abstract_basis import AbstractBasis
 from skfem.quadrature import get_quadrature
 from skfem.element import ElementH1
 
@@ -20,6 +22,34 @@ _BASES = weakref.WeakValueDictionary()
 DOFS = "dofs"  # shared_basis's quadrature of one point per cell
 
 
+class DofBasis(CellBasis):
+    """A scikit-fem CellBasis at one point per cell (the reference centroid, weight |K_ref|)
+    that holds the dofs (element_dofs, doflocs), the mapping and the cells, and tabulates
+    the basis functions there (`basis`: phi_k and its derivatives on every cell, Nbfun x
+    (components x derivatives) floats per cell, 1152 bytes per P1 vector tetrahedron) and
+    dx = |det DF| |K_ref| only when first read."""
+
+    def __init__(self, mesh, elem, elements=None):
+        X, W = get_quadrature(mesh.refdom, 0)
+        AbstractBasis.__init__(self, mesh, elem, quadrature=(X.mean(axis=1, keepdims=True),
+                                                             W.sum(keepdims=True)), refdom=mesh.refdom)
+        self.tind = None if elements is None else mesh.normalize_elements(elements)
+        self.nelems = mesh.nelements if elements is None else len(self.tind)
+
+    @cached_property
+    def basis(self):
+        return [self.elem.gbasis(self.mapping, self.X, j, tind=self.tind) for j in range(self.Nbfun)]
+
+    @cached_property
+    def dx(self):
+        return np.abs(self.mapping.detDF(self.X, tind=self.tind)) * np.broadcast_to(self.W, (self.nelems, 1))
+
+    @property
+    def value_shape(self):
+        """Shape of a basis function's value at a point (from one cell of the mesh)."""
+        return np.asarray(self.elem.gbasis(self.mapping, self.X, 0, tind=np.zeros(1, dtype=np.int64))[0]).shape[:-2]
+
+
 def shared_basis(mesh, element, intorder):
     """One scikit-fem basis per mesh, element object and quadrature order (DOFS: one
     point per cell, for the dofs, their locations and the mapping), on this rank's cells
@@ -30,9 +60,7 @@ def shared_basis(mesh, element, intorder):
         if getattr(element, "facet_dofs", 0):  # the dofs on facets number them
             build_facets(mesh)
         if intorder is DOFS:
-            X, W = get_quadrature(mesh.refdom, 0)
-            basis = Basis(mesh, element, quadrature=(X.mean(axis=1, keepdims=True), W.sum(keepdims=True)),
-                          elements=partition.cells(mesh))
+            basis = DofBasis(mesh, element, elements=partition.cells(mesh))
         else:
             basis = Basis(mesh, element, intorder=intorder, elements=partition.cells(mesh))
         _BASES[key] = basis
@@ -56,9 +84,9 @@ class Field:
     Fields given the same element object on the same mesh share their bases: pass one
     instance to save memory and time.
 
-    dof_basis: a scikit-fem basis with one quadrature point per cell: the dofs, their
-    locations and the mapping, without the basis functions at every quadrature point of
-    every cell (the library tabulates those itself, nitsche.measures); `basis`, the
+    dof_basis: a DofBasis, a scikit-fem basis with one quadrature point per cell: the dofs,
+    their locations and the mapping, its basis functions tabulated only if read (the
+    library tabulates those itself, nitsche.measures); `basis`, the
     scikit-fem basis at the field's quadrature (intorder), is built on first use.
     """
 

@@ -374,7 +374,7 @@ def value_shapes(field, orders):
     if getattr(field, "tangents_of", None) is not None:
         raise ValueError(f"facet tangents '{field.name}' are read on an interface with "
                          "pairing='current' onto their body only")
-    value = _part(field.dof_basis.basis[0][0], 0).shape[:-2]
+    value = field.dof_basis.value_shape
     return [value + (field.mesh.dim(),) * o for o in orders]
 
 

@@ -125,3 +125,42 @@ def test_the_sort_with_order_equals_a_stable_argsort(high):
     ordered, order = sort_with_order(keys)
     assert np.array_equal(order, np.argsort(keys, kind="stable"))
     assert np.array_equal(ordered, np.sort(keys))
+
+
+@pytest.mark.parametrize("name, sets", [("membrane-solid", {"cells": "tet"}), ("membrane-solid", {}),
+                                        ("two-membrane", {})])
+def test_quadratic_terms_on_their_own_entries_add_as_full_length_arrays(name, sets):
+    """A quadratic term on fewer than half of the pattern's entries (the membrane beside the
+    solid) keeps its matrix on its own entries; J, its gradient and the Newton matrix's data
+    equal those of the earlier path, one pattern-long data array per quadratic term."""
+    case = get(name)
+    problem = case.problem(0, 1, case.parameters(sets))
+    a = problem.assembler
+    x = problem.initial(None) + 1e-3 * np.random.default_rng(1).standard_normal(problem.ndofs)
+    E, grad, data = a.evaluate(x)
+    E_ref, grad_ref, data_ref = 0.0, np.zeros(problem.ndofs), np.zeros(a.nnz)
+    compact = []
+    for t, scatter in zip(a.terms, a.scatter):
+        if t.is_quadratic:  # the earlier path: the term's data on the whole pattern
+            d, g0, E0 = np.zeros(a.nnz), np.zeros(problem.ndofs), 0.0
+            for s, (e, ge, H) in t.calls("full", np.zeros(problem.ndofs)):
+                E0 += float(e.sum())
+                np.add.at(g0, t.global_dofs[s:s + len(ge)], ge)
+                scatter.add(d, H, s)
+            K = sp.csr_matrix((d, a.indices, a.indptr), shape=(problem.ndofs,) * 2)
+            E_ref += E0 + g0 @ x + 0.5 * x @ (K @ x)
+            grad_ref = grad_ref + g0 + K @ x
+            data_ref += d
+            positions = a._quadratic(t, scatter)[3]
+            compact.append(positions is not None)
+            assert (positions is not None) == (2 * np.count_nonzero(d) < a.nnz)
+        else:
+            out = t.run("full", x)
+            E_ref += float(out[0].sum())
+            grad_ref += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=problem.ndofs)
+            scatter.add(data_ref, out[2])
+    if name == "membrane-solid":
+        assert compact == [False, True]  # the solid on the pattern, the membrane on its entries
+    np.testing.assert_array_equal(data, data_ref)
+    np.testing.assert_array_equal(grad, grad_ref)
+    assert E == E_ref

@@ -276,3 +276,24 @@ def test_hertz_study_errors_decrease():
         vals = [r[key] for r in rows[1:]]
         assert all(b < a for a, b in zip(vals, vals[1:])), (key, vals)
     assert rows[-1]["error_pressure_L2"] < 0.1
+
+
+@pytest.mark.parametrize("cells", ["hex", "tet"])
+def test_principal_stresses_chunked_equal_cell_basis(cells, monkeypatch):
+    """The principal stresses computed CHUNK cells at a time from the dof basis equal those of
+    a scikit-fem CellBasis on the whole mesh (the earlier path, default quadrature)."""
+    from skfem import CellBasis, ElementTetP1, MeshTet
+    t = np.linspace(0, 1, 4)
+    mesh, elem = (MeshHex, ElementHex1) if cells == "hex" else (MeshTet, ElementTetP1)
+    f = ni.Field("u", mesh.init_tensor(t, t, t), ElementVector(elem()))
+    u = np.random.default_rng(0).normal(size=f.ndofs) * 1e-3
+    E, nu = 50.0, 0.3
+    Gr = np.asarray(CellBasis(f.mesh, f.element).interpolate(u).grad)
+    mu, lam = lame(E, nu)
+    eps = 0.5 * (Gr + Gr.transpose(1, 0, 2, 3))
+    sigma = 2 * mu * eps + lam * np.trace(eps) * np.eye(3)[:, :, None, None]
+    expected = np.moveaxis(np.linalg.eigvalsh(np.moveaxis(sigma, (0, 1), (-2, -1)))[..., ::-1], -1, 0)
+    monkeypatch.setattr(ms, "CHUNK", 7)  # several chunks and a short last one
+    got = ms.principal_stresses(f, u, E, nu)
+    assert got.shape == expected.shape and f.mesh.nelements % 7 != 0
+    np.testing.assert_array_equal(got, expected)

@@ -23,7 +23,8 @@ import os
 import jax.numpy as jnp
 import numpy as np
 from skfem import (MeshHex, MeshQuad, MeshTet, MeshTri, ElementHex1, ElementQuad1, ElementTetP1,
-                   ElementTriP1, ElementVector, CellBasis)
+                   ElementTriP1, ElementVector)
+from skfem.quadrature import get_quadrature
 
 import nitsche as ni
 from nitsche.case import Interval, NONNEGATIVE, OneOf, POISSON, POSITIVE
@@ -91,10 +92,20 @@ def build(level, degree, p):
 
 # -- post-processing ---------------------------------------------------------------
 
-def stress(field, u, E, nu):
-    """sigma at the cell quadrature points of a 3D vector field, shape (3, 3, cells, points)."""
-    b = CellBasis(field.mesh, field.element)
-    Gr = np.asarray(b.interpolate(u).grad)
+CHUNK = 2 ** 14  # cells per block of the post-processing (bounds its temporaries)
+
+
+def stress(field, u, E, nu, cells):
+    """sigma = 2 mu eps + lam tr(eps) I, eps = sym grad u, of a 3D vector field (ElementVector:
+    dof j d + i is the scalar function phi_j in component i) at the points of the quadrature
+    of order 2 maxdeg (scikit-fem's default) of the given cells, shape (3, 3, cells, points);
+    grad u_i = sum_j u_{j d + i} grad phi_j."""
+    b, element = field.dof_basis, field.element
+    d = element.dim
+    X = get_quadrature(field.mesh.refdom, 2 * element.maxdeg)[0]
+    grads = [np.asarray(element.elem.gbasis(b.mapping, X, j, tind=cells)[0].grad) for j in range(b.Nbfun // d)]
+    Gr = np.stack([sum(u[b.element_dofs[j * d + i, cells]][:, None] * g for j, g in enumerate(grads))
+                   for i in range(d)])
     mu, lam = lame(E, nu)
     eps = 0.5 * (Gr + Gr.transpose(1, 0, 2, 3))
     tr = np.trace(eps)
@@ -103,10 +114,14 @@ def stress(field, u, E, nu):
 
 def principal_stresses(field, u, E, nu):
     """Principal stresses at the cell quadrature points, descending: (3, cells, points);
-    [0] is the first (largest) principal stress."""
-    s = stress(field, u, E, nu)
-    ev = np.linalg.eigvalsh(np.moveaxis(s, (0, 1), (-2, -1)))  # ascending
-    return np.moveaxis(ev[..., ::-1], -1, 0)
+    [0] is the first (largest) principal stress.  Computed CHUNK cells at a time."""
+    cells = np.arange(field.mesh.nelements)
+    parts = []
+    for start in range(0, cells.size, CHUNK):
+        s = stress(field, u, E, nu, cells[start:start + CHUNK])
+        ev = np.linalg.eigvalsh(np.moveaxis(s, (0, 1), (-2, -1)))  # ascending
+        parts.append(np.moveaxis(ev[..., ::-1], -1, 0))
+    return np.concatenate(parts, axis=1)
 
 
 def report(problem, result, p):
