@@ -17,10 +17,8 @@ import os
 import statistics
 import subprocess
 import sys
-import time
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-RESULTS = os.path.join(HERE, "results")
+from run_ratio import HERE, write_results
 
 CHILD = r"""
 import json, resource, sys, time
@@ -109,11 +107,8 @@ def main():
         print(f"{r['case']:<14}{r['version']:<8}{r['unknowns']:>9d}{r['cpu']:>7.2f}{r['setup']:>8.2f}"
               f"{r['finest_setup']:>8.2f}{r['prolongation']:>9.3f}{r['loading']:>8.2f}"
               f"{r['finest_solve']:>8.2f}{r['peak_mb']:>8.0f}  {r['energy']:.15g}, {r['iterations']}")
-    os.makedirs(RESULTS, exist_ok=True)
-    with open(os.path.join(RESULTS, args.name), "w") as fh:
-        json.dump(dict(rows=rows, cpu_count=os.cpu_count(), date=time.strftime("%Y-%m-%d %H:%M"),
-                       load=os.getloadavg(), note="CPU seconds of the chain (imports excluded), "
-                       "medians of the repetitions; shared 2-core machine"), fh, indent=1)
+    write_results(args.name, rows, "CPU seconds of the chain (imports excluded), medians of the "
+                  "repetitions; shared 2-core machine")
 
 
 if __name__ == "__main__":

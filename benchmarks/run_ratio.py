@@ -130,11 +130,15 @@ def main():
             print(f"{'  before':<14}{'':>9}{r['before_seconds']:>8.2f}{'':>9}{'':>9}"
                   f"{r['before_time_ratio']:>7.2f}{'':>9}{'':>7}{'':>9}{'':>7}{r['before_process_cpu_ratio']:>8.2f}"
                   f"{r['before_peak_mb']:>9.0f}{'':>10}{r['before_memory_ratio']:>7.2f}  {r['before_energy']:.12g}")
+    write_results(args.name, rows, "shared 2-core machine: ratios within one repetition, medians")
+
+
+def write_results(name, rows, note):
+    """benchmarks/results/NAME: the rows with the machine's CPU count, the date and the load."""
     os.makedirs(RESULTS, exist_ok=True)
-    with open(os.path.join(RESULTS, args.name), "w") as fh:
+    with open(os.path.join(RESULTS, name), "w") as fh:
         json.dump(dict(rows=rows, cpu_count=os.cpu_count(), date=time.strftime("%Y-%m-%d %H:%M"),
-                       load=os.getloadavg(),
-                       note="shared 2-core machine: ratios within one repetition, medians"), fh, indent=1)
+                       load=os.getloadavg(), note=note), fh, indent=1)
 
 
 if __name__ == "__main__":
