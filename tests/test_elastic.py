@@ -297,3 +297,5 @@ def test_principal_stresses_chunked_equal_cell_basis(cells, monkeypatch):
     got = ms.principal_stresses(f, u, E, nu)
     assert got.shape == expected.shape and f.mesh.nelements % 7 != 0
     np.testing.assert_array_equal(got, expected)
+    some = np.array([11, 2, 2, f.mesh.nelements - 1])  # a subset, unordered, repeated
+    np.testing.assert_array_equal(ms.principal_stresses(f, u, E, nu, some), expected[:, some])

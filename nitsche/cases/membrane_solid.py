@@ -112,10 +112,11 @@ def stress(field, u, E, nu, cells):
     return 2 * mu * eps + lam * tr * np.eye(3)[:, :, None, None]
 
 
-def principal_stresses(field, u, E, nu):
-    """Principal stresses at the cell quadrature points, descending: (3, cells, points);
-    [0] is the first (largest) principal stress.  Computed CHUNK cells at a time."""
-    cells = np.arange(field.mesh.nelements)
+def principal_stresses(field, u, E, nu, cells=None):
+    """Principal stresses at the quadrature points of the cells (default all), descending:
+    (3, cells, points); [0] is the first (largest) principal stress.  Computed CHUNK cells
+    at a time."""
+    cells = np.arange(field.mesh.nelements) if cells is None else np.asarray(cells)
     parts = []
     for start in range(0, cells.size, CHUNK):
         s = stress(field, u, E, nu, cells[start:start + CHUNK])
@@ -151,18 +152,19 @@ def figures(problem, result, p, outdir):
     fu, fw = problem.by_name["u"], problem.by_name["w"]
     mesh = fu.mesh
     d = vertex_values(fu, result["u"])
-    s1 = principal_stresses(fu, result["u"], p.E, p.nu)[0].mean(axis=1)
     facets = mesh.boundary_facets()
     owner = mesh.f2t[0, facets]
     scale = 0.2 / max(np.abs(d).max(), 1e-300)
     X = (mesh.p.T + scale * d)[mesh.facets[:, facets].T]  # (facets, 4, 3)
     centre = X.mean(axis=1)
     keep = (centre[:, 0] > -1) & (np.abs(mesh.p[2, mesh.facets[:, facets]].mean(0)) > 1e-12)
+    # cell means of the first principal stress, of the drawn facets' cells only
+    s1 = principal_stresses(fu, result["u"], p.E, p.nu, owner[keep])[0].mean(axis=1)
     # the facet vertices of skfem are ordered around the face (quadrilaterals; triangles)
     fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
     norm = plt.Normalize(s1.min(), s1.max())
-    coll = Poly3DCollection(X[keep], facecolors=plt.cm.coolwarm(norm(s1[owner[keep]])),
+    coll = Poly3DCollection(X[keep], facecolors=plt.cm.coolwarm(norm(s1)),
                             edgecolors=(0, 0, 0, 0.15), linewidths=0.2)
     ax.add_collection3d(coll)
     ax.set_xlim(0, 1), ax.set_ylim(0, 1), ax.set_zlim(0, 1.1)
