@@ -246,8 +246,10 @@ def build_ours(problem, mesh, alpha0):
     if problem in ("obstacle", "obstacle-3d"):
         T, f = OB["T"], OB["f"]
 
+        dim = mesh.dim()  # (an int: the kernels' key, unlike the mesh, is the same on every level)
+
         def psi(x):
-            r2 = sum(x[i] ** 2 for i in range(mesh.dim()))
+            r2 = sum(x[i] ** 2 for i in range(dim))
             return jnp.where(r2 < 1.0, jnp.sqrt(jnp.maximum(1.0 - r2, 0.0)), -1.0)
 
         element, intorder = p1(mesh)
