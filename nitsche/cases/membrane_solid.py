@@ -98,11 +98,12 @@ CHUNK = 2 ** 14  # cells per block of the post-processing (bounds its temporarie
 def stress(field, u, E, nu, cells):
     """sigma = 2 mu eps + lam tr(eps) I, eps = sym grad u, of a 3D vector field (ElementVector:
     dof j d + i is the scalar function phi_j in component i) at the points of the quadrature
-    of order 2 maxdeg (scikit-fem's default) of the given cells, shape (3, 3, cells, points);
-    grad u_i = sum_j u_{j d + i} grad phi_j."""
+    of order 2 maxdeg (scikit-fem's default) of the given cells, or at their centroid for a
+    linear element (P1 tetrahedra: the strain is constant in a cell), shape
+    (3, 3, cells, points); grad u_i = sum_j u_{j d + i} grad phi_j."""
     b, element = field.dof_basis, field.element
     d = element.dim
-    X = get_quadrature(field.mesh.refdom, 2 * element.maxdeg)[0]
+    X = get_quadrature(field.mesh.refdom, 0 if element.maxdeg == 1 else 2 * element.maxdeg)[0]
     grads = [np.asarray(element.elem.gbasis(b.mapping, X, j, tind=cells)[0].grad) for j in range(b.Nbfun // d)]
     Gr = np.stack([sum(u[b.element_dofs[j * d + i, cells]][:, None] * g for j, g in enumerate(grads))
                    for i in range(d)])
@@ -113,7 +114,7 @@ def stress(field, u, E, nu, cells):
 
 
 def principal_stresses(field, u, E, nu, cells=None):
-    """Principal stresses at the quadrature points of the cells (default all), descending:
+    """Principal stresses at the points of `stress` in the cells (default all), descending:
     (3, cells, points); [0] is the first (largest) principal stress.  Computed CHUNK cells
     at a time."""
     cells = np.arange(field.mesh.nelements) if cells is None else np.asarray(cells)
