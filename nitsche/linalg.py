@@ -203,12 +203,19 @@ class AMGCG:
     CG goes on from where it stopped (the next solve then measures rate: the few
     iterations that finish a solve do not).
 
-    The hierarchy: pyamg's smoothed aggregation with the matrix itself as the strength of
-    connection (the same aggregates as its symmetric measure at theta = 0, without
-    computing it) and the candidates B as given (no relaxation sweeps to improve them:
-    the rigid-body modes are already the near-nullspace)."""
+    The hierarchy: pyamg's smoothed aggregation with the candidates B as given (no
+    relaxation sweeps to improve them: the rigid-body modes are already the
+    near-nullspace), on the finest level the matrix itself as the strength of connection
+    (the same aggregates as pyamg's symmetric measure at theta = 0, without computing it;
+    the coarser levels, block matrices, keep that measure on their blocks)."""
     name = "amg"
-    OPTIONS = dict(symmetry="symmetric", strength=None, improve_candidates=None)
+
+    @staticmethod
+    def options():
+        """pyamg.smoothed_aggregation_solver's options (a new list each time: pyamg extends
+        the per-level list it is given)."""
+        return dict(symmetry="symmetric", improve_candidates=None,
+                    strength=[(None, {}), ("symmetric", {"theta": 0.0})])
 
     def __init__(self, rtol=1e-10, maxiter=2000, rebuild_factor=2.0, slack=2):
         # a new hierarchy costs about 30 CG iterations (3D elasticity, 200k unknowns: 2.8 s
@@ -226,7 +233,7 @@ class AMGCG:
     def _build(self, A):
         import pyamg
         B = self.B if self.B is not None and self.B.shape[0] == A.shape[0] else None
-        self.ml = pyamg.smoothed_aggregation_solver(A, B=B, **self.OPTIONS)
+        self.ml = pyamg.smoothed_aggregation_solver(A, B=B, **self.options())
         self.M, self.rate = self.ml.aspreconditioner(cycle="V"), None
         self.setups += 1
 
