@@ -217,10 +217,11 @@ class AMGCG:
         return dict(symmetry="symmetric", improve_candidates=None,
                     strength=[(None, {}), ("symmetric", {"theta": 0.0})])
 
-    def __init__(self, rtol=1e-10, maxiter=2000, rebuild_factor=2.0, slack=2):
+    def __init__(self, rtol=1e-10, maxiter=2000, rebuild_factor=2.0, slack=2, pyamg_options=None):
         # a new hierarchy costs about 30 CG iterations (3D elasticity, 200k unknowns: 2.8 s
         # against 0.1 s CPU per iteration), a stale one several times its iterations
         self.rtol, self.maxiter, self.rebuild_factor, self.slack = rtol, maxiter, rebuild_factor, slack
+        self.pyamg_options = pyamg_options  # None: options()
         self.B, self.ml, self.rate = None, None, None
         self.iterations, self.setups = [], 0
 
@@ -233,7 +234,7 @@ class AMGCG:
     def _build(self, A):
         import pyamg
         B = self.B if self.B is not None and self.B.shape[0] == A.shape[0] else None
-        self.ml = pyamg.smoothed_aggregation_solver(A, B=B, **self.options())
+        self.ml = pyamg.smoothed_aggregation_solver(A, B=B, **(self.pyamg_options or self.options()))
         self.M, self.rate = self.ml.aspreconditioner(cycle="V"), None
         self.setups += 1
 
