@@ -94,6 +94,7 @@ def child(args, variant, path):
                amg_setup_cpu_seconds=cpu.get("_build"), cg_cpu_seconds=cpu.get("_cg"),
                minimum_check_cpu_seconds=cpu.get("is_positive_definite"))
     if variant == "amg":  # one linear solve: a fresh hierarchy and CG to 1e-10
+        lin = None  # (the Newton solve's hierarchy not held through it)
         one = solver("amg")
         one.prepare(problem)
         _, g, A = problem.newton_system(x0)
