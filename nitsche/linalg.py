@@ -207,7 +207,8 @@ class AMGCG:
     relaxation sweeps to improve them: the rigid-body modes are already the
     near-nullspace), on the finest level the matrix itself as the strength of connection
     (the same aggregates as pyamg's symmetric measure at theta = 0, without computing it;
-    the coarser levels, block matrices, keep that measure on their blocks)."""
+    the coarser levels, block matrices, keep that measure on their blocks);
+    pyamg_options: other keyword arguments of pyamg.smoothed_aggregation_solver instead."""
     name = "amg"
 
     @staticmethod
@@ -265,7 +266,7 @@ class AMGCG:
         x, its, stale = None, 0, False
         if self.ml is not None and self.ml.levels[0].A.shape == A.shape:
             limit = (int(self.rebuild_factor * self.rate * decades) + self.slack
-                     if self.rate is not None else self.maxiter)  # (built by is_positive_definite)
+                     if self.rate is not None else self.maxiter)  # (built by is_positive_definite or midway)
             x, info, its = self._cg(A, b, tol, maxiter=limit)
             stale = info != 0
         if x is None or stale:  # no hierarchy yet, or a stale one: build on A, go on from x
