@@ -99,6 +99,18 @@ def tensor_mesh(problem, n):
     return MeshTri.init_tensor(t, t)
 
 
+def refined_tensor_mesh(problem, n0, n):
+    """The 2D tensor mesh of n x n squares as the n0 x n0 one refined uniformly (n / n0 a
+    power of 2): the same triangles as tensor_mesh(problem, n), numbered as a refinement
+    numbers them, so that the library prolongates a level to the next from vertex values
+    and facet means (no point location), as in the cases' chains."""
+    from nitsche.meshes import refined
+    times = int(round(np.log2(n / n0)))
+    if n0 * 2 ** times != n:
+        raise ValueError(f"mesh sizes {n0} and {n}: a refined chain needs n / n0 a power of 2")
+    return refined(tensor_mesh(problem, n0), times)
+
+
 def psi_np(x):
     r2 = sum(xi ** 2 for xi in x)  # (2D and 3D)
     return np.where(r2 < 1.0, np.sqrt(np.maximum(1.0 - r2, 0.0)), -1.0)
@@ -214,8 +226,9 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
         case = get(problem)
         p = case.parameters({"alpha0": str(alpha0)} | ({"compare": "false"} if problem != "obstacle" else {}))
         make, solve = [lambda k=k: case.problem(k, 1, p) for k in range(level + 1)], case.solve
-    else:
-        make = [lambda n=n: build_ours(problem, tensor_mesh(problem, n), alpha0) for n in mesh_spec]
+    else:  # 2D: the n x n tensor meshes as a nested chain does them, each the coarsest refined
+        make = [lambda n=n: build_ours(problem, refined_tensor_mesh(problem, mesh_spec[0], n), alpha0)
+                for n in mesh_spec]
     its, levels, newton_seconds = [], [], 0.0
     for k, problem_k, result_k in nested(lambda i: make[i](), range(len(make)), solve):
         result_k.check()
