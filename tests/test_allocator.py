@@ -48,3 +48,30 @@ def test_opting_out_leaves_malloc_alone(monkeypatch):
     monkeypatch.delenv("NITSCHE_MALLOC")
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "131072")
     assert keep_freed_memory() is False
+
+
+RELEASE = """
+import ctypes
+import nitsche
+from nitsche.allocator import release_freed_memory
+libc = ctypes.CDLL(None)
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+def rss():
+    with open("/proc/self/status") as fh:
+        return next(int(l.split()[1]) for l in fh if l.startswith("VmRSS")) * 1024
+n = 64 << 20
+keep = libc.malloc(1 << 20); ctypes.memset(keep, 1, 1 << 20)
+a = libc.malloc(n); ctypes.memset(a, 1, n)
+guard = libc.malloc(1 << 20); ctypes.memset(guard, 1, 1 << 20)  # above it: no trim from the top
+libc.free(a)
+before = rss(); released = release_freed_memory(); print(released, before - rss())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
+def test_release_gives_a_kept_free_block_back():
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+    out = subprocess.run([sys.executable, "-c", RELEASE], env=environ, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[0] == "True" and int(out[1]) > 0.9 * (64 << 20)  # the freed block's pages
