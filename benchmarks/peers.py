@@ -99,6 +99,18 @@ def tensor_mesh(problem, n):
     return MeshTri.init_tensor(t, t)
 
 
+def refined_tensor_mesh(problem, n0, n):
+    """The 2D tensor mesh of n x n squares as the n0 x n0 one refined uniformly (n / n0 a
+    power of 2): the same triangles as tensor_mesh(problem, n), numbered as a refinement
+    numbers them, so that the library prolongates a level to the next from vertex values
+    and facet means (no point location), as in the cases' chains."""
+    from nitsche.meshes import refined
+    times = int(round(np.log2(n / n0)))
+    if n0 * 2 ** times != n:
+        raise ValueError(f"mesh sizes {n0} and {n}: a refined chain needs n / n0 a power of 2")
+    return refined(tensor_mesh(problem, n0), times)
+
+
 def psi_np(x):
     r2 = sum(xi ** 2 for xi in x)  # (2D and 3D)
     return np.where(r2 < 1.0, np.sqrt(np.maximum(1.0 - r2, 0.0)), -1.0)
@@ -192,42 +204,44 @@ class Cholesky:
 # -- the codes (each runs in a subprocess: `peers.py --worker CODE PROBLEM ...`) ------
 
 def run_ours(problem, level, alpha0, mesh_spec=None):
-    """Nested chain; mesh_spec None: the case's levels 0..level; else ('tensor', [n...])."""
+    """Nested chain as `nitsche run` runs it (nitsche.study.nested: each level from the
+    previous one's solution, not lifted, the minimum checked on the finest level only);
+    mesh_spec None: the case's levels 0..level; else ('tensor', [n...]).  times: the
+    Newton phases summed over the levels, setup = the rest (problems and prolongations)."""
     import nitsche  # noqa: F401
     import nitsche.assembly  # noqa: F401
-    from nitsche.study import prolongate
+    from nitsche.study import nested
     from nitsche.cases import get
     t_all = time.perf_counter()
-    t = dict(setup=0.0, assembly=0.0, solve=0.0, line_search=0.0, compile=0.0)
+    t = dict(setup=0.0, assembly=0.0, solve=0.0, line_search=0.0, minimum_check=0.0, compile=0.0)
+    solve = None
     if problem == "membrane-solid":  # 3D scaling: the case itself, n = 7 * 2^level
         case = get(problem)
         p = case.parameters({"alpha0": str(alpha0), "n0": str(N0_3D)})
-        make = [lambda k=k: case.problem(k, 1, p) for k in range(level + 1)]
+        make, solve = [lambda k=k: case.problem(k, 1, p) for k in range(level + 1)], case.solve
     elif problem == "obstacle-3d":  # the nested chain n = 5, 10, ..., 5 * 2^level
         make = [lambda n=n: build_ours(problem, tensor_mesh(problem, n), alpha0)
                 for n in mesh_spec or [N0_TET * 2 ** k for k in range(level + 1)]]
     elif mesh_spec is None:
         case = get(problem)
         p = case.parameters({"alpha0": str(alpha0)} | ({"compare": "false"} if problem != "obstacle" else {}))
-        make = [lambda k=k: case.problem(k, 1, p) for k in range(level + 1)]  # alpha0 checked per level
-    else:
-        make = [lambda n=n: build_ours(problem, tensor_mesh(problem, n), alpha0) for n in mesh_spec]
-    prev, its, levels = None, [], []
-    for mk in make:
-        t0 = time.perf_counter()
-        prob = mk()
-        t["setup"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        x0 = prolongate(*prev, prob) if prev else None
-        t["setup"] += time.perf_counter() - t0
-        res = prob.minimize(x0)
-        res.check()
-        for k in ("assembly", "solve", "line_search", "compile"):
-            t[k] += res.timings.get(k, 0.0)
-        its.append(res.iterations)
-        levels.append(dict(unknowns=int(prob.free.size), iterations=res.iterations,
-                           seconds=res.seconds))
-        prev = (prob, res.x)
+        make, solve = [lambda k=k: case.problem(k, 1, p) for k in range(level + 1)], case.solve
+    else:  # 2D: the n x n tensor meshes as a nested chain does them, each the coarsest refined
+        make = [lambda n=n: build_ours(problem, refined_tensor_mesh(problem, mesh_spec[0], n), alpha0)
+                for n in mesh_spec]
+    its, levels, newton_seconds = [], [], 0.0
+    for k, problem_k, result_k in nested(lambda i: make[i](), range(len(make)), solve):
+        result_k.check()
+        for key in ("assembly", "solve", "line_search", "minimum_check", "compile"):
+            t[key] += result_k.timings.get(key, 0.0)
+        its.append(result_k.iterations)
+        newton_seconds += result_k.seconds
+        levels.append(dict(unknowns=int(problem_k.free.size), iterations=result_k.iterations,
+                           seconds=result_k.seconds))
+        if k == len(make) - 1:
+            prob, res = problem_k, result_k
+        problem_k = result_k = None  # not held through the next level (nested holds its own)
+    t["setup"] = time.perf_counter() - t_all - newton_seconds
     t["total"] = time.perf_counter() - t_all
     parts = prob.split(res.x)
     names = [f.name for f in prob.fields] if problem in PROBLEMS else []  # (not membrane-solid)

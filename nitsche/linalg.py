@@ -75,7 +75,7 @@ class Cholmod:
         self.stale = False
 
     def solve(self, A, b, rtol=0.0):
-        A = A.tocsc()
+        A = symmetric_csc(A)
         if self.factored is not None and semidefinite_difference(A, self.factored, zero=True):
             return self.factor(b)  # same matrix as the factored one
         if self.factor is not None and rtol > 0 and not self.stale:
@@ -92,7 +92,7 @@ class Cholmod:
         F the factored matrix and D positive semidefinite (then A >= F > 0; see
         semidefinite_difference), else a new factorization of A (one numeric
         factorization: the symbolic analysis is kept)."""
-        A = A.tocsc()
+        A = symmetric_csc(A)
         if self.factored is not None and semidefinite_difference(A, self.factored):
             return True
         try:
@@ -103,6 +103,13 @@ class Cholmod:
 
     def stats(self):
         return dict(factorizations=self.factorizations, cg_iterations=list(self.iterations))
+
+
+def symmetric_csc(A):
+    """The symmetric matrix A in CSC form for CHOLMOD, which reads its lower triangle: a CSR
+    matrix's transpose, the same arrays (no conversion, no copy; its lower triangle is A's
+    upper one, equal to A's to round-off for a Hessian assembled symmetric to round-off)."""
+    return A.T if A.format == "csr" else A.tocsc()
 
 
 def semidefinite_difference(A, F, zero=False):

@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from .allocator import release_freed_memory
 from .norms import energy_norm, rates
 from .newton import NotConverged
 
@@ -95,7 +96,8 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
                 failure = dict(level=k, reason=result.reason)
                 return (*converged_level(), its, failure) if prev else (problem, result, its, failure)
             if k == level:
-                return problem, result, its, None
+                release_freed_memory()  # the solve's factor and temporaries, kept for the next
+                return problem, result, its, None  # Newton step, back to the system
             prev = (k, dataclasses.replace(result, problem=None))
             problem = result = None
     except FAILURES as e:

@@ -1,0 +1,77 @@
+"""nitsche.allocator: freed blocks stay in the heap, so touching a new one costs no page faults."""
+import os
+import subprocess
+import sys
+
+import pytest
+
+TOUCH = """
+import ctypes, resource, sys
+import nitsche
+libc = ctypes.CDLL(None)
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+n = 64 << 20
+a = libc.malloc(n); ctypes.memset(a, 1, n); libc.free(a)       # a large block, freed
+before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+b = libc.malloc(n); ctypes.memset(b, 1, n)                      # the next one, touched
+print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+"""
+
+
+def faults(**env):
+    """Minor page faults of touching a 64 MB block after freeing one, in a fresh process."""
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+    out = subprocess.run([sys.executable, "-c", TOUCH], env=dict(environ, **env), capture_output=True,
+                         text=True, check=True)
+    return int(out.stdout.split()[-1])
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_a_freed_large_block_is_reused_without_page_faults():
+    import ctypes
+    try:
+        ctypes.CDLL(None).mallopt
+    except AttributeError:
+        pytest.skip("no mallopt in this C library")
+    pages = (64 << 20) // 4096
+    kept, system = faults(), faults(NITSCHE_MALLOC="system")
+    assert kept < 0.05 * pages, kept          # the freed block's pages, already resident
+    assert system > 0.5 * pages, system       # unmapped on free: every page faulted anew
+    assert faults(MALLOC_MMAP_MAX_="65536") > 0.5 * pages  # a user's tunable is left alone
+
+
+def test_opting_out_leaves_malloc_alone(monkeypatch):
+    from nitsche.allocator import keep_freed_memory
+    monkeypatch.setenv("NITSCHE_MALLOC", "system")
+    assert keep_freed_memory() is False
+    monkeypatch.delenv("NITSCHE_MALLOC")
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "131072")
+    assert keep_freed_memory() is False
+
+
+RELEASE = """
+import ctypes
+import nitsche
+from nitsche.allocator import release_freed_memory
+libc = ctypes.CDLL(None)
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+def rss():
+    with open("/proc/self/status") as fh:
+        return next(int(l.split()[1]) for l in fh if l.startswith("VmRSS")) * 1024
+n = 64 << 20
+keep = libc.malloc(1 << 20); ctypes.memset(keep, 1, 1 << 20)
+a = libc.malloc(n); ctypes.memset(a, 1, n)
+guard = libc.malloc(1 << 20); ctypes.memset(guard, 1, 1 << 20)  # above it: no trim from the top
+libc.free(a)
+before = rss(); released = release_freed_memory(); print(released, before - rss())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc_trim")
+def test_release_gives_a_kept_free_block_back():
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+    out = subprocess.run([sys.executable, "-c", RELEASE], env=environ, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[0] == "True" and int(out[1]) > 0.9 * (64 << 20)  # the freed block's pages
