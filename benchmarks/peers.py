@@ -210,7 +210,9 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
     Newton phases summed over the levels, setup = the rest (problems and prolongations)."""
     import nitsche  # noqa: F401
     import nitsche.assembly  # noqa: F401
+    from nitsche.allocator import keep_freed_memory
     from nitsche.study import nested
+    keep_freed_memory()  # as the `nitsche` command does
     from nitsche.cases import get
     t_all = time.perf_counter()
     t = dict(setup=0.0, assembly=0.0, solve=0.0, line_search=0.0, minimum_check=0.0, compile=0.0)

@@ -13,12 +13,6 @@ import warnings
 # 6x slower (spinning against JAX's threads) and the factorization only 10 % faster.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-# freed arrays kept in the heap for the next Newton step instead of unmapped and faulted in
-# anew (nitsche.allocator: glibc only; NITSCHE_MALLOC=system leaves malloc as it is)
-from .allocator import keep_freed_memory  # noqa: E402
-
-keep_freed_memory()
-
 import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)

@@ -14,6 +14,7 @@ import threading
 import warnings
 
 from . import cases as registry, distributed
+from .allocator import keep_freed_memory
 from .case import ParameterError, parse_assignments
 from .output import Interrupted, OutputFolder, raise_interrupted, redeliver_ignored
 
@@ -90,6 +91,9 @@ def show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def main(argv=None):
+    # the command owns its process: freed arrays stay in the heap for the next Newton step
+    # (nitsche.allocator; a library import leaves malloc alone)
+    keep_freed_memory()
     args, petsc_options = parser().parse_known_args(argv)
     ranks = None
     if args.command == "run" and distributed.launched_by_mpirun():

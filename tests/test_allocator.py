@@ -8,6 +8,9 @@ import pytest
 TOUCH = """
 import ctypes, resource, sys
 import nitsche
+from nitsche.allocator import keep_freed_memory
+if sys.argv[1:] == ["keep"]:
+    keep_freed_memory()
 libc = ctypes.CDLL(None)
 libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
@@ -19,10 +22,12 @@ print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 """
 
 
-def faults(**env):
-    """Minor page faults of touching a 64 MB block after freeing one, in a fresh process."""
+def faults(keep=True, **env):
+    """Minor page faults of touching a 64 MB block after freeing one, in a fresh process
+    that imports nitsche and (keep) calls keep_freed_memory as the `nitsche` command does."""
     environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
-    out = subprocess.run([sys.executable, "-c", TOUCH], env=dict(environ, **env), capture_output=True,
+    out = subprocess.run([sys.executable, "-c", TOUCH] + (["keep"] if keep else []),
+                         env=dict(environ, **env), capture_output=True,
                          text=True, check=True)
     return int(out.stdout.split()[-1])
 
@@ -39,6 +44,7 @@ def test_a_freed_large_block_is_reused_without_page_faults():
     assert kept < 0.05 * pages, kept          # the freed block's pages, already resident
     assert system > 0.5 * pages, system       # unmapped on free: every page faulted anew
     assert faults(MALLOC_MMAP_MAX_="65536") > 0.5 * pages  # a user's tunable is left alone
+    assert faults(keep=False) > 0.5 * pages   # importing the library leaves malloc alone
 
 
 def test_opting_out_leaves_malloc_alone(monkeypatch):
@@ -53,7 +59,8 @@ def test_opting_out_leaves_malloc_alone(monkeypatch):
 RELEASE = """
 import ctypes
 import nitsche
-from nitsche.allocator import release_freed_memory
+from nitsche.allocator import keep_freed_memory, release_freed_memory
+keep_freed_memory()
 libc = ctypes.CDLL(None)
 libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
