@@ -195,7 +195,22 @@ class DistributedProblem:
         held[on] = x[on]
         return report_constraints(self.local.constraints, self.local.constraint_values(x),
                                   self.local.split(held), self.local.alpha0, self.local.limits,
-                                  gather=self.comm.allgather)
+                                  gather=self.statistics)
+
+    def statistics(self, s):
+        """Every rank's constraint_statistics s, rank after rank (report_constraints' gather),
+        their scalars all-gathered; alpha0 and its limits per element stay on the ranks: the
+        first piece carries their (min, median, max) over all elements (order_statistics),
+        the others none, so constraint_summary's min, median and max of the concatenation
+        are the whole problem's, bit for bit."""
+        s = dict(s)
+        arrays = {k: s.pop(k) for k in ("alpha0", "limits")}
+        pieces = self.comm.allgather(s)
+        for k, a in arrays.items():
+            summary = order_statistics(self.comm, a)
+            for i, piece in enumerate(pieces):
+                piece[k] = summary if i == 0 else summary[:0]
+        return pieces
 
     def minimize(self, x0=None, solver="auto", **options):
         """Newton's method (nitsche.newton.newton) with a PETSc solver: 'gamg' (CG + GAMG),
@@ -205,6 +220,46 @@ class DistributedProblem:
         result = newton(self, x0, solver=KrylovSolver(solver, self), **options)
         result.x = self.whole(result.x)
         return result
+
+
+def order_statistics(comm, a):
+    """[min, median, max] of the ranks' arrays a together (np.median's: the mean of the two
+    middle values of an even count), exactly, without gathering them: each order statistic
+    is found by bisection on the ordered 64-bit keys of the doubles (kth_smallest)."""
+    from mpi4py import MPI
+    keys = np.sort(ordered_keys(np.asarray(a, float).ravel()))
+    n = comm.allreduce(keys.size)
+    if n == 0:
+        raise ValueError("order statistics of no values")
+    at = [0, (n - 1) // 2, n // 2, n - 1]
+    lo = comm.allreduce(int(keys[0]) if keys.size else np.iinfo(np.int64).max, op=MPI.MIN)
+    hi = comm.allreduce(int(keys[-1]) if keys.size else np.iinfo(np.int64).min, op=MPI.MAX)
+    v = [float(ordered_keys(np.array([kth_smallest(comm, keys, k, lo, hi)]), inverse=True)[0])
+         for k in at[1:3]]
+    first, last = (float(ordered_keys(np.array([k]), inverse=True)[0]) for k in (lo, hi))
+    return np.array([first, v[0] if n % 2 else np.mean(v), last])
+
+
+def ordered_keys(a, inverse=False):
+    """The doubles a as int64 keys in the same order (and back: inverse): the sign bit
+    flips the other bits of negative numbers."""
+    if inverse:
+        b = np.asarray(a, np.int64)
+        return (b ^ ((b >> 63) & np.int64(0x7FFFFFFFFFFFFFFF))).view(np.float64)
+    b = np.ascontiguousarray(a, np.float64).view(np.int64)
+    return b ^ ((b >> 63) & np.int64(0x7FFFFFFFFFFFFFFF))
+
+
+def kth_smallest(comm, keys, k, lo, hi):
+    """The k-th smallest (from 0) of the ranks' sorted keys, all in [lo, hi]: the least key
+    K with more than k keys <= K, by bisection (one reduction of a count per step)."""
+    while lo < hi:
+        mid = lo + (hi - lo) // 2
+        if comm.allreduce(int(np.searchsorted(keys, mid, side="right"))) > k:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
 
 
 class SummedAssembler:
