@@ -146,10 +146,19 @@ class DistributedProblem:
 
     def newton_system(self, x):
         """J_h(x), its gradient on the free dofs and the PETSc Hessian on them (as a
-        DistributedMatrix)."""
+        DistributedMatrix); first the last step's PETSc vectors are destroyed (collect)."""
+        self.collect()
         E, g, data = self.assembler.evaluate(x)
         self.layout.set_values(data)
         return E, g[self.local.free], self.matrix
+
+    def collect(self):
+        """Destroy the PETSc objects Python dropped (collective): petsc4py defers the
+        destruction of parallel objects to PETSc.garbage_cleanup, so without it the
+        vectors of every solve, product and minimum check stay allocated on 2+ ranks
+        (measured: 1.5 MiB per Newton iteration per rank at 130k unknowns)."""
+        from petsc4py import PETSc
+        PETSc.garbage_cleanup(self.comm)
 
     def lift(self, x0, solve):
         """Problem.lift: H_ff dx_f = -H_fc d with the summed Hessian."""
@@ -219,6 +228,7 @@ class DistributedProblem:
         from .newton import newton
         result = newton(self, x0, solver=KrylovSolver(solver, self), **options)
         result.x = self.whole(result.x)
+        self.collect()
         return result
 
 
@@ -308,9 +318,10 @@ class Layout:
         rows = number[np.repeat(np.arange(problem.ndofs), np.diff(a.indptr))]
         cols = number[a.indices]
         self.keep = np.flatnonzero((rows >= 0) & (cols >= 0))
-        self.rows, self.cols = rows[self.keep], cols[self.keep]
+        rows, cols = rows[self.keep], cols[self.keep]
         lo, hi = self.start, self.start + self.counts[dp.rank]
-        self.off_rank = int(((self.rows < lo) | (self.rows >= hi)).sum())  # rows of other ranks
+        self.off_rank = int(((rows < lo) | (rows >= hi)).sum())  # rows of other ranks
+        self.pattern = (rows, cols)  # given to PETSc once (matrix), then dropped
         self.owner = owner
         self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
         self.unshifted = None  # the assembled diagonal while a shift is applied
@@ -326,7 +337,9 @@ class Layout:
         A = PETSc.Mat().create(comm=self.comm)
         A.setSizes(((local, self.n), (local, self.n)))
         A.setType(PETSc.Mat.Type.AIJ)
-        A.setPreallocationCOO(self.rows.astype(PETSc.IntType), self.cols.astype(PETSc.IntType))
+        rows, cols = self.pattern
+        self.pattern = None
+        A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))
         self.A = A
         self.ghosted = PETSc.Vec().createSeq(self.held.size, comm=PETSc.COMM_SELF)
         self.to_held = PETSc.Scatter().create(
@@ -566,6 +579,8 @@ def lowest_eigenvalue(A, precondition, x, iterations=40, tol=1e-3):
         Ax.scale(c[0])
         Ax.axpy(1.0, Ap_new)
         size = p_new.norm()
+        for v in (p, Ap) if p else ():
+            v.destroy()  # now (petsc4py would keep a parallel vector until garbage_cleanup)
         p, Ap = (p_new, Ap_new) if size > 0 else (None, None)
         if p:
             p.scale(1 / size)
