@@ -22,7 +22,9 @@ divided among the ranks; the meshes stay whole on every rank.
   at convergence is LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the
   preconditioner and reductions of a few numbers); the constraint report is the serial
   engine's (problem.report_constraints) on each rank's elements, combined from a few
-  numbers per rank (and alpha0 per element, for its medians).
+  numbers per rank (alpha0's medians by a distributed selection, order_statistics);
+- petsc4py keeps the parallel PETSc objects Python drops until PETSc.garbage_cleanup:
+  it runs once per Newton system (collect).
 
 Newton itself is nitsche.newton.newton, unchanged but for the norms and dot products it
 asks of the problem: the same stopping test, line search and result; `ranks` is R.
