@@ -10,9 +10,11 @@ by the reductions and by PETSc's COO assembly (nitsche.distributed).
 
 What stays whole on every rank: the meshes (points, cells, facets, the dof numbering) and
 the dof vectors.  Quantities integrated over the cells (nitsche.norms.exact_errors, the
-binned pictures of nitsche.plot) are computed inside `local(comm)` on this rank's cells and
-reduced over the ranks (summed, smallest, largest, gathered: identities outside).  The other body's boundary is thereby the all-gathered contact surface
-against which each rank pairs its own interface facets.
+binned pictures of nitsche.plot, the cases' output hooks) are computed inside `local(comm)`
+on this rank's cells and reduced over the ranks (summed, smallest, largest, gathered,
+collected, summed_matrix, first: identities outside).  The other body's boundary is
+thereby the all-gathered contact surface against which each rank pairs its own interface
+facets.
 """
 import contextlib
 import weakref
@@ -72,6 +74,12 @@ def cells(mesh):
     return _CELLS[k]
 
 
+def own_cells(mesh):
+    """This rank's cells of the mesh, or all cells outside a partition."""
+    mine = cells(mesh)
+    return np.arange(mesh.nelements) if mine is None else mine
+
+
 def metis_parts(pymetis, k, xadj, adjncy):
     """The k-way METIS part of each vertex of the CSR graph (xadj, adjncy): through
     pymetis.CSRAdjacency where pymetis has it (2025.2; passing xadj/adjncy is deprecated)."""
@@ -116,6 +124,39 @@ def gathered(a):
     rank, on every rank (a outside): for data of a lower dimension (a contact line)."""
     comm = active()
     return a if comm is None else np.concatenate(comm.allgather(np.asarray(a)))
+
+
+def collected(index, values, n):
+    """The rows `values` that the ranks give at the indices `index` of an array of n rows
+    (each index given by one rank), on every rank; NaN where no rank gives one (outside:
+    values at index): e.g. a value per cell of a figure from the ranks' own cells."""
+    values = np.asarray(values, dtype=float)
+    out = np.full((n,) + values.shape[1:], np.nan)
+    out[gathered(np.asarray(index, np.int64))] = gathered(values)
+    return out
+
+
+def summed_matrix(A):
+    """The sum over the partition's ranks of the sparse matrices A (each rank's elements'
+    entries), on rank 0 and None on the others (A outside): for an output that needs the
+    whole matrix (a condition number) without the whole problem."""
+    comm = active()
+    if comm is None:
+        return A
+    from scipy.sparse import csr_matrix
+    parts = comm.gather(csr_matrix(A), root=0)
+    if comm.rank > 0:
+        return None
+    total = parts[0]
+    for B in parts[1:]:
+        total = total + B
+    return total
+
+
+def first(value):
+    """Rank 0's value on every rank of the partition (value outside)."""
+    comm = active()
+    return value if comm is None else comm.bcast(value, root=0)
 
 
 def _reduced(a, op):

@@ -292,12 +292,15 @@ def surface_measures(surface):
 def interface_report(problem, x, name):
     """How constraint `name` is integrated: pairing ('supermesh' or 'points'), number of
     measure elements, the supermesh's build time and, to compare, the time of one Newton
-    assembly (J_h, gradient and Hessian) of the whole problem at x."""
+    assembly (J_h, gradient and Hessian) of the whole problem at x.  On a rank's part
+    (inside nitsche.partition.local) the elements are summed over the ranks and the
+    seconds are the slowest rank's."""
     i = [c.name for c in problem.constraints].index(name)
     stats = getattr(problem.constraints[i].on, "stats", None)
     start = time.perf_counter()
     problem.assembler.evaluate(x)
+    seconds = time.perf_counter() - start
     return dict(pairing="supermesh" if stats else "points",
-                elements=int(problem.constraint_terms[i].nel),
-                supermesh_seconds=stats["seconds"] if stats else None,
-                newton_assembly_seconds=time.perf_counter() - start)
+                elements=int(partition.summed(problem.constraint_terms[i].nel)),
+                supermesh_seconds=float(partition.largest(stats["seconds"])) if stats else None,
+                newton_assembly_seconds=float(partition.largest(seconds)))

@@ -29,6 +29,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector, CellBasis
 
 import nitsche as ni
+from nitsche import partition
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE, ParameterError
 from nitsche.meshes import graded
 from nitsche.ops import dot, lame, sym_grad
@@ -36,6 +37,9 @@ from nitsche.supermesh import interface_report
 
 NAME = "elastic-contact"
 SUMMARY = "two elastic bodies in frictionless contact, plane strain; Hertz check (section 5.2)"
+# under mpirun the hooks take the interface's points gathered (a line), the reactions summed,
+# the von Mises stresses of the ranks' own cells (largest; the figure's cell means collected)
+OUTPUTS_FROM_PIECES = True
 PARAMETERS = {
     "setup": ("punch", "'punch' (tilted rigid punch, docs/elastic.md) or 'hertz' (analytical check)"),
     "E1": (1.0, "Young's modulus of body 1 (lower, less stiff: carries the multiplier)"),
@@ -161,9 +165,10 @@ def build(level, degree, p):
 
 # -- post-processing ---------------------------------------------------------------
 
-def von_mises(field, u, E, nu):
-    """Plane-strain von Mises stress at the cell quadrature points, shape (cells, points)."""
-    b = CellBasis(field.mesh, field.element)
+def von_mises(field, u, E, nu, cells=None):
+    """Plane-strain von Mises stress at the quadrature points of the cells (default all),
+    shape (cells, points)."""
+    b = CellBasis(field.mesh, field.element, elements=cells)
     G = np.asarray(b.interpolate(u).grad)  # (2, 2, cells, points)
     mu, lam = lame(E, nu)
     eps = 0.5 * (G + G.transpose(1, 0, 2, 3))
@@ -173,20 +178,36 @@ def von_mises(field, u, E, nu):
     return np.sqrt(0.5 * ((sxx - syy) ** 2 + (syy - szz) ** 2 + (szz - sxx) ** 2) + 3 * sxy ** 2)
 
 
+def cell_von_mises(field, u, E, nu):
+    """The von Mises stress's mean over each cell of the mesh (the ranks' own cells
+    collected)."""
+    cells = partition.own_cells(field.mesh)
+    return partition.collected(cells, von_mises(field, u, E, nu, cells).mean(axis=1),
+                               field.mesh.nelements)
+
+
+def von_mises_max(field, u, E, nu):
+    """The largest von Mises stress at the quadrature points (over the ranks' own cells)."""
+    cells = partition.own_cells(field.mesh)
+    return float(partition.largest(von_mises(field, u, E, nu, cells).max(initial=-np.inf)))
+
+
 def pressure(problem, result):
-    """(x along the interface, discrete contact pressure lambda_N, weights), sorted by x."""
+    """(x along the interface, discrete contact pressure lambda_N, weights), sorted by x
+    (the points of all ranks' contact facets)."""
     v = problem.constraint_values(result.x)["contact"]
-    x, lam, W = v["x"][..., 0].ravel(), v["multiplier"].ravel(), v["W"].ravel()
+    x, lam, W = (partition.gathered(a.ravel()) for a in (v["x"][..., 0], v["multiplier"], v["W"]))
     order = np.argsort(x)
     return x[order], lam[order], W[order]
 
 
 def reaction(problem, result, name, component=1):
-    """Total reaction force (component) at the fixed dofs of field `name`."""
+    """Total reaction force (component) at the fixed dofs of field `name` (summed over the
+    ranks' elements)."""
     g = problem.gradient(result.x)
     f = problem.by_name[name]
     dofs = f.fixed_dofs[f.fixed_dofs % 2 == component] + problem.offsets[name]
-    return float(g[dofs].sum())
+    return float(partition.summed(g[dofs].sum()))
 
 
 def hertz(P, p):
@@ -227,7 +248,7 @@ def report(problem, result, p):
                reaction_body1=reaction(problem, result, "u1"),
                reaction_body2=reaction(problem, result, "u2"),
                max_interpenetration=float(result.max_violation),
-               von_mises_max=[float(von_mises(problem.by_name[n], result[n], E, nu).max())
+               von_mises_max=[von_mises_max(problem.by_name[n], result[n], E, nu)
                               for n, E, nu in (("u1", p.E1, p.nu1), ("u2", p.E2, p.nu2))],
                interface=interface_report(problem, result.x, "contact"))
     if p.setup == "hertz":
@@ -247,14 +268,19 @@ def figures(problem, result, p, outdir):
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
     from nitsche.io import vertex_values
+    bodies = [(n, cell_von_mises(problem.by_name[n], result[n], E, nu))
+              for n, E, nu in (("u1", p.E1, p.nu1), ("u2", p.E2, p.nu2))]
+    x, lam, W = pressure(problem, result)
+    hertz_data = hertz_comparison(problem, result, p) if p.setup == "hertz" else None
+    if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
+        return []
     paths = []
     fig, ax = plt.subplots(figsize=(5.5, 6.5))
     vmax = 0.0
     scale = 1.0 if p.setup == "punch" else 5.0
-    for n, E, nu in (("u1", p.E1, p.nu1), ("u2", p.E2, p.nu2)):
+    for n, vm in bodies:
         f = problem.by_name[n]
         d = vertex_values(f, result[n])
-        vm = von_mises(f, result[n], E, nu).mean(axis=1)
         tri = mtri.Triangulation(f.mesh.p[0] + scale * d[:, 0], f.mesh.p[1] + scale * d[:, 1],
                                  f.mesh.t.T)
         im = ax.tripcolor(tri, facecolors=vm, cmap="viridis", edgecolors="none")
@@ -272,15 +298,13 @@ def figures(problem, result, p, outdir):
     plt.close(fig)
     paths.append(path)
 
-    x, lam, W = pressure(problem, result)
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(x, lam, ".-", ms=3, label="Nitsche $\\lambda_N$")
-    if p.setup == "hertz":
-        c = hertz_comparison(problem, result, p)
+    if hertz_data is not None:
         xs = np.linspace(0, x.max(), 800)
-        ax.plot(xs, c["peak_pressure"] * np.sqrt(np.maximum(1 - (xs / c["half_width"]) ** 2, 0)),
-                "k--", label="Hertz")
-        ax.set_xlim(0, 2.5 * c["half_width"])
+        a, p0 = hertz_data["half_width"], hertz_data["peak_pressure"]
+        ax.plot(xs, p0 * np.sqrt(np.maximum(1 - (xs / a) ** 2, 0)), "k--", label="Hertz")
+        ax.set_xlim(0, 2.5 * a)
     ax.set_xlabel("x on the interface")
     ax.set_ylabel("contact pressure")
     ax.legend()

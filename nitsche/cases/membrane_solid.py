@@ -27,6 +27,7 @@ from skfem import (MeshHex, MeshQuad, MeshTet, MeshTri, ElementHex1, ElementQuad
 from skfem.quadrature import get_quadrature
 
 import nitsche as ni
+from nitsche import partition
 from nitsche.case import Interval, NONNEGATIVE, OneOf, POISSON, POSITIVE
 from nitsche.ops import dot, grad, lame, lap, sym_grad
 from nitsche.supermesh import interface_report
@@ -48,6 +49,9 @@ PARAMETERS = {
     "cells": ("hex", "'hex': trilinear hexahedra and bilinear quadrilaterals; 'tet': linear "
                      "tetrahedra and triangles (P1)"),
 }
+# under mpirun the hooks sum the contact force, take the principal stresses' extremes over the
+# ranks' own cells and collect the figures' values (the drawn facets' cells, the contact points)
+OUTPUTS_FROM_PIECES = True
 RANGES = {"mu": POSITIVE, "d": NONNEGATIVE, "E": POSITIVE, "nu": POISSON, "alpha0": POSITIVE,
           "n0": Interval(1, closed_lo=True), "m0": Interval(0, closed_lo=True),
           "cells": OneOf(("hex", "tet"))}
@@ -105,7 +109,7 @@ def stress(field, u, E, nu, cells):
     d = element.dim
     X = get_quadrature(field.mesh.refdom, 0 if element.maxdeg == 1 else 2 * element.maxdeg)[0]
     grads = [np.asarray(element.elem.gbasis(b.mapping, X, j, tind=cells)[0].grad) for j in range(b.Nbfun // d)]
-    Gr = np.stack([sum(u[b.element_dofs[j * d + i, cells]][:, None] * g for j, g in enumerate(grads))
+    Gr = np.stack([sum(u[b.dofs.element_dofs[j * d + i, cells]][:, None] * g for j, g in enumerate(grads))
                    for i in range(d)])
     mu, lam = lame(E, nu)
     eps = 0.5 * (Gr + Gr.transpose(1, 0, 2, 3))
@@ -128,13 +132,14 @@ def principal_stresses(field, u, E, nu, cells=None):
 
 def report(problem, result, p):
     v = problem.constraint_values(result.x)["contact"]
-    s1 = principal_stresses(problem.by_name["u"], result["u"], p.E, p.nu)[0]
+    fu = problem.by_name["u"]
+    s1 = principal_stresses(fu, result["u"], p.E, p.nu, partition.own_cells(fu.mesh))[0]
     w = result["w"]
-    return dict(contact_force=float((v["W"] * v["multiplier"]).sum()),
+    return dict(contact_force=float(partition.summed((v["W"] * v["multiplier"]).sum())),
                 applied_load=float(p.load),  # on the unit square
                 min_deflection=float(w.min()),
-                first_principal_stress_max=float(s1.max()),
-                first_principal_stress_min=float(s1.min()),
+                first_principal_stress_max=float(partition.largest(s1.max(initial=-np.inf))),
+                first_principal_stress_min=float(partition.smallest(s1.min(initial=np.inf))),
                 interface=interface_report(problem, result.x, "contact"))
 
 
@@ -159,8 +164,15 @@ def figures(problem, result, p, outdir):
     X = (mesh.p.T + scale * d)[mesh.facets[:, facets].T]  # (facets, 4, 3)
     centre = X.mean(axis=1)
     keep = (centre[:, 0] > -1) & (np.abs(mesh.p[2, mesh.facets[:, facets]].mean(0)) > 1e-12)
-    # cell means of the first principal stress, of the drawn facets' cells only
-    s1 = principal_stresses(fu, result["u"], p.E, p.nu, owner[keep])[0].mean(axis=1)
+    # cell means of the first principal stress, of the drawn facets' cells only (each rank's own)
+    mine = np.flatnonzero(np.isin(owner[keep], partition.own_cells(mesh)))
+    s1 = principal_stresses(fu, result["u"], p.E, p.nu, owner[keep][mine])[0].mean(axis=1) \
+        if mine.size else np.empty(0)
+    s1 = partition.collected(mine, s1, int(keep.sum()))
+    v = problem.constraint_values(result.x)["contact"]
+    active = partition.gathered(v["x"].reshape(-1, 2)[v["multiplier"].ravel() > 0])  # contact points
+    if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
+        return []
     # the facet vertices of skfem are ordered around the face (quadrilaterals; triangles)
     fig = plt.figure(figsize=(7, 6))
     ax = fig.add_subplot(projection="3d")
@@ -190,10 +202,7 @@ def figures(problem, result, p, outdir):
                              np.r_[m.t[[0, 1, 2]].T, m.t[[0, 2, 3]].T])
     im = ax.tricontourf(tri, wv, levels=30, cmap="viridis")
     fig.colorbar(im, ax=ax, label="membrane deflection w")
-    v = problem.constraint_values(result.x)["contact"]
-    act = v["multiplier"].ravel() > 0
-    xq = v["x"].reshape(-1, 2)
-    ax.plot(xq[act, 0], xq[act, 1], "w.", ms=1)
+    ax.plot(active[:, 0], active[:, 1], "w.", ms=1)
     ax.set_aspect("equal")
     ax.set_title("membrane deflection (white: contact)")
     ax.set_xlabel("x")

@@ -37,8 +37,9 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
+from nitsche import partition
 from nitsche.meshes import refined
-from nitsche.conditioning import jacobian_condition, fitted_slope
+from nitsche.conditioning import condition_number, fitted_slope
 from nitsche.case import NONNEGATIVE, OneOf, POSITIVE, ParameterError
 from nitsche.ops import dot, grad, lap
 
@@ -56,6 +57,9 @@ PARAMETERS = {
     "penalty_alpha0": (0.1, "penalty parameter factor (eps = penalty_alpha0 h^s / mu1)"),
     "compare": (True, "study: also solve the other method at each level (both condition numbers)"),
 }
+# under mpirun: the contact summary is the engine's combined report, the Jacobian (for its
+# condition number) the ranks' Hessians summed on rank 0, the figure's cell pressures collected
+OUTPUTS_FROM_PIECES = True
 METHODS = ("nitsche", "penalty")
 RANGES = {"mu1": POSITIVE, "mu2": POSITIVE, "d": NONNEGATIVE, "alpha0": POSITIVE,
           "method": OneOf(METHODS), "penalty_power": POSITIVE,
@@ -124,7 +128,10 @@ def contact_summary(result):
 
 
 def conditioning(problem, result):
-    c = jacobian_condition(problem, result.x)
+    """The condition number of the Newton Jacobian (free dofs) at the solution: of the whole
+    matrix, the ranks' parts summed on rank 0 (nitsche.partition.summed_matrix) under mpirun."""
+    A = partition.summed_matrix(problem.newton_system(result.x)[2])
+    c = partition.first(None if A is None else condition_number(A))
     return dict(condition_number=c["cond"], jacobian_lambda_min=c["lambda_min"],
                 jacobian_lambda_max=c["lambda_max"], condition_method=c["method"])
 
@@ -195,6 +202,14 @@ def surface(ax, tri, w, **style):
     return ax.plot_surface(X, Y, Z, **style)
 
 
+def cell_pressure(problem, x):
+    """The contact pressure's mean over each cell (the ranks' own cells collected)."""
+    v = problem.constraint_values(x)["contact"]
+    on = problem.constraints[[c.name for c in problem.constraints].index("contact")].on
+    return partition.collected(on.cells, (v["multiplier"] * v["W"]).sum(1) / v["W"].sum(1),
+                               on.mesh.nelements)
+
+
 def figures(problem, result, p, outdir):
     """Figure 1: both membranes in one 3D picture, and the contact pressure."""
     import matplotlib
@@ -209,8 +224,9 @@ def figures(problem, result, p, outdir):
     tri = mtri.Triangulation(mesh.p[0], mesh.p[1], mesh.t.T)
     w1 = vertex_values(f1, parts["u1"])
     w2 = vertex_values(f2, parts["u2"]) + p.d
-    v = problem.constraint_values(result.x)["contact"]
-    per_cell = (v["multiplier"] * v["W"]).sum(1) / v["W"].sum(1)
+    per_cell = cell_pressure(problem, result.x)
+    if outdir is None:  # a rank other than 0 under mpirun: its part is in per_cell
+        return []
     summary = contact_summary(result)
     _, level, degree, _ = problem.setup
 
