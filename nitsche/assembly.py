@@ -24,6 +24,7 @@ import copy
 import hashlib
 import time
 import types
+from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -32,10 +33,11 @@ import scipy.sparse as sp
 
 from jax.extend.core import Literal
 
+from .device import host, on_device
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
-from .pattern import Pattern
+from .pattern import Pattern, index_type, scatter_add
 
 # Quadrature points per kernel call: small, large.  Each size is a kernel shape to load (or
 # compile) once per process; a nested chain loads the small set on its coarse levels and
@@ -108,15 +110,25 @@ def global_names(code):
     return tuple(sorted(names))
 
 
-def _pad(a, n):
-    """Pad axis 0 to length n by repeating the last entry, or zeros for a term without
-    elements on this rank (results for the padding are discarded); only the last (small)
-    chunk of a term is padded."""
-    if a.shape[0] == n:
-        return a
-    if a.shape[0] == 0:
-        return np.zeros((n,) + a.shape[1:])
-    return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
+@partial(jax.jit, static_argnums=(0, 1))
+def take(chunk, columns, start, count, elements, x, dofs, tables, rest, theta):
+    """The arguments of one kernel call, gathered on the device: the rows e_i, i = start ..
+    start + chunk - 1 clamped to count - 1 (the padding repeats the last element), of the
+    elements (all: e_i = i; or the given ones: e_i = elements[i]); each field's element
+    dofs x[dofs[e_i, columns[f]:columns[f + 1]]]; the per-element tables, per-point data and
+    the parameters theta (one row: the same on every element).  Returns (rows, tables,
+    dofs of each field, rest, theta per row)."""
+    rows = jnp.minimum(start + jnp.arange(chunk), count - 1)
+    if elements is not None:
+        rows = elements[rows]
+
+    def of_rows(a, keep_shared):
+        if a.shape[0] == 1:
+            return a if keep_shared else jnp.broadcast_to(a, (chunk,) + a.shape[1:])
+        return a[rows]
+    u = x[dofs[rows]]
+    return (rows, [of_rows(a, True) for a in tables], [u[:, i:j] for i, j in zip(columns[:-1], columns[1:])],
+            [of_rows(a, False) for a in rest], jnp.broadcast_to(theta, (chunk,) + theta.shape))
 
 
 def check_arguments(names, fields, label, parameters=()):
@@ -187,10 +199,11 @@ class Term:
         self.fields = [by_name[name] for name, _, _ in self.layout]
         self.chunks = tuple(max(1, c // self.nq) for c in CHUNK_POINTS)  # elements per call
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
-        # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
-        self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
+        # tabulation R with the inverse Jacobians J and how its rows are formed (maps); all
+        # per-element data are held once, on the device (on_device), the NumPy copies dropped
+        self.T, self.J, self.maps, self.kept, dofs = [], [], [], [], []
         for (name, parts, _) in self.layout:
-            T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
+            T, d = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
             mapped = isinstance(T, Mapped)
             # jet components that vanish identically (e.g. P1 Hessians) are left out of the
             # differentiation and enter the density as exact zeros
@@ -198,26 +211,24 @@ class Term:
             if kept.size == 0:
                 kept = np.arange(1)
             if mapped:
-                self.T.append(T.R)
-                self.J.append(T.invJ)
+                self.T.append(_rows(T.R))
+                self.J.append(_rows(T.invJ))
                 self.maps.append(T.spec)
             else:
-                self.T.append(T if kept.size == T.shape[2] else np.ascontiguousarray(T[:, :, kept]))
+                self.T.append(_rows(T if kept.size == T.shape[2] else T[:, :, kept]))
                 self.J.append(None)
                 self.maps.append(None)
             self.kept.append(tuple(kept.tolist()))
-            self.dofs.append(dofs)
+            dofs.append(d)
+            del T
         self.offsets = [offsets[f.name] for f in self.fields]
-        self.field_dofs = [d if o == 0 else d + o for d, o in zip(self.dofs, self.offsets)]
-        self.global_dofs = self.field_dofs[0] if len(self.field_dofs) == 1 \
-            else np.concatenate(self.field_dofs, axis=1)  # (one field at offset 0: no copies)
-        self.W = W
-        self.x = np.ascontiguousarray(np.moveaxis(measure.points, 0, -1)) \
-            if "x" in names or keep_points else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
-                                                                (self.nel, self.nq, self.dim))
-        self.n = np.ascontiguousarray(np.moveaxis(n, 0, -1)) if self.has_normal \
-            else np.broadcast_to(np.zeros((1, self.nq, self.dim)), (self.nel, self.nq, self.dim))
-        self.h = np.asarray(measure.h, dtype=float)
+        self.columns = tuple(np.cumsum([0] + [d.shape[1] for d in dofs]).tolist())  # of each field
+        x = np.moveaxis(measure.points, 0, -1) if "x" in names or keep_points else np.zeros((1, self.nq, self.dim))
+        # shared with the terms made by with_pointwise (retabulate changes T and dofs in place)
+        self.device = dict(dofs=None, W=_rows(W), x=_rows(x),
+                           n=_rows(np.moveaxis(n, 0, -1) if self.has_normal else np.zeros((1, self.nq, self.dim))),
+                           h=_rows(np.asarray(measure.h, dtype=float)))
+        self._set_dofs(dofs)
         self.cells = measure.cells  # the cell of measure.mesh that owns each element
         self.alpha0 = np.ones(self.nel)  # per-element data of constraint terms (see functional.ALPHA0)
         self._kernels = {}
@@ -259,15 +270,60 @@ class Term:
         """Tabulate again the fields that live on another mesh than the measure's (after an
         interface changed its pairing, nitsche.sliding), in place: terms made by
         with_pointwise share the new tabulations, and the shapes, hence the kernels, stay."""
+        dofs = [d - o for d, o in zip(self.field_dofs, self.offsets)]
         for i, ((name, parts, _), f) in enumerate(zip(self.layout, self.fields)):
             if f.mesh is self.measure.mesh:
                 continue
-            T, dofs = self.measure.tabulation(f, [o for o, _, _, _ in parts])
+            T, dofs[i] = self.measure.tabulation(f, [o for o, _, _, _ in parts])
             kept = list(self.kept[i])
-            self.T[i] = T if len(kept) == T.shape[2] else np.ascontiguousarray(T[:, :, kept])
-            self.dofs[i] = dofs
-            self.field_dofs[i] = dofs + self.offsets[i]
-        self.global_dofs[...] = np.concatenate(self.field_dofs, axis=1)
+            self.T[i] = _rows(T if len(kept) == T.shape[2] else T[:, :, kept])
+        self._set_dofs(dofs)
+
+    def _set_dofs(self, dofs):
+        """The global dofs (elements, local dofs of all fields) from each field's local dofs,
+        on the device (int32 while they fit)."""
+        G = np.concatenate([d + o for d, o in zip(dofs, self.offsets)], axis=1)
+        self.device["dofs"] = _rows(G, index_type(int(G.max(initial=0)) + 1))
+
+    @property
+    def global_dofs(self):
+        """The global dofs of every element (elements, local dofs), a read-only host view."""
+        return host(self.device["dofs"])[:self.nel]
+
+    @property
+    def field_dofs(self):
+        """The global dofs of every element, field by field (views of global_dofs)."""
+        G = self.global_dofs
+        return [G[:, a:b] for a, b in zip(self.columns[:-1], self.columns[1:])]
+
+    @property
+    def W(self):
+        """W[e, q]: quadrature weight x Jacobian (x the measure's weight), a host view."""
+        return host(self.device["W"])[:self.nel]
+
+    @property
+    def x(self):
+        """The quadrature points x[e, q, :] (zeros where the term keeps no points), a host view."""
+        return np.broadcast_to(host(self.device["x"]), (self.nel, self.nq, self.dim))
+
+    @property
+    def n(self):
+        """The outward normals n[e, q, :] (zeros on cells), a host view."""
+        return np.broadcast_to(host(self.device["n"]), (self.nel, self.nq, self.dim))
+
+    @property
+    def h(self):
+        """The mesh size h[e] of the cell that owns each element, a host view."""
+        return host(self.device["h"])[:self.nel]
+
+    @property
+    def alpha0(self):
+        """alpha0 per element (see functional.ALPHA0), a host view."""
+        return host(self._alpha0)[:self.nel]
+
+    @alpha0.setter
+    def alpha0(self, values):
+        self._alpha0 = _rows(np.broadcast_to(np.asarray(values, dtype=float), (self.nel,)))
 
     def with_pointwise(self, pointwise):
         """The same term (same tabulations) with another density (not a residual) of the
@@ -298,10 +354,6 @@ class Term:
     def _theta0(self):
         """The parameters the density reads, at their current values (for tracing)."""
         return jnp.asarray(self.parameters.values[self.parameter_index])
-
-    def parameter_data(self, n):
-        """The values of the parameters the density reads, one row per element of a chunk."""
-        return np.broadcast_to(self.parameters.values[self.parameter_index], (n, self.parameter_index.size))
 
     def _point_fn(self, by_field=False):
         """The density w(z, x, n, h, a, t) of the kept jet components z of all fields (one
@@ -382,7 +434,7 @@ class Term:
                     for a in self.tables]
             args += [jax.ShapeDtypeStruct((chunk, k), jnp.float64) for _, k in self.sizes]
             args += [jax.ShapeDtypeStruct((chunk,) + a.shape[1:], jnp.float64)
-                     for a in (self.W, self.x, self.n, self.h, self.alpha0, self.parameter_data(1))]
+                     for a in (self.W, self.x, self.n, self.h, self.alpha0, self.parameter_index[None])]
             t = time.perf_counter()
             _COMPILED[key] = jax.jit(fn).lower(*args).compile()
             compile_seconds[0] += time.perf_counter() - t
@@ -400,29 +452,55 @@ class Term:
             [(s, small) for s in range(whole, max(nel, whole + 1), small)]
 
     def calls(self, kind, x, elements=None):
-        """Apply a kernel to all elements (or to the given ones) for the global dof vector x,
-        call by call: yields (the first element of the call, its outputs without padding)."""
-        us = [x[d] for d in self.field_dofs]
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x
+        (NumPy or on the device), call by call, on the device (take): yields (the first
+        element of the call, how many of its rows are elements (the rest is padding), the
+        rows (chunk,) and the outputs (chunk, ...) of the call)."""
         nel = self.nel if elements is None else len(elements)
+        x = jnp.asarray(x)
+        elements = jnp.asarray(elements, self.device["dofs"].dtype) if nel and elements is not None else None
+        d = self.device
+        per_point = (d["W"], d["x"], d["n"], d["h"], self._alpha0)
+        theta = jnp.asarray(self.parameters.values[self.parameter_index])
         for s, chunk in self.blocks(nel):
-            kern = self.kernel(kind, chunk)
-            sl = slice(s, s + chunk) if elements is None else elements[s: s + chunk]
-            Ts = [a if a.shape[0] == 1 else _pad(a[sl], chunk) for a in self.tables]
-            rest = [_pad(a[sl], chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            out = kern(*Ts, *rest, self.parameter_data(chunk))
-            yield s, [np.asarray(o)[:max(0, min(chunk, nel - s))] for o in out]
+            rows, tables, us, rest, t = take(chunk, self.columns, s, nel, elements, x, d["dofs"], self.tables,
+                                             per_point, theta)
+            yield s, max(0, min(chunk, nel - s)), rows, self.kernel(kind, chunk)(*tables, *us, *rest, t)
 
     def run(self, kind, x, elements=None):
-        """The kernel's outputs on all elements (or on the given ones): each call's outputs
-        copied into arrays of all elements as they come (peak: one copy plus one call's)."""
+        """The kernel's outputs on all elements (or on the given ones), on the host: each
+        call's outputs copied into arrays of all elements as they come (peak: one copy plus
+        one call's)."""
         nel = self.nel if elements is None else len(elements)
         outs = None
-        for s, got in self.calls(kind, x, elements):
+        for s, valid, _, got in self.calls(kind, x, elements):
             if outs is None:
                 outs = [np.empty((nel,) + o.shape[1:], o.dtype) for o in got]
             for out, o in zip(outs, got):
-                out[s:s + len(o)] = o
+                out[s:s + valid] = host(o)[:valid]
         return outs
+
+
+def _rows(a, dtype=float):
+    """Per-element data on the device (on_device); no elements: one row of zeros (the padding
+    of a term without elements on this rank, whose results are discarded)."""
+    a = np.asarray(a)
+    return on_device(a if a.shape[0] else np.zeros((1,) + a.shape[1:]), dtype)
+
+
+@partial(jax.jit, donate_argnums=(1, 2))
+def accumulate(E, grad, data, valid, rows, dofs, out, blocks):
+    """E, grad, data plus the outputs (energies e[, gradients g[, Hessians H]]) of a kernel
+    call on the elements `rows`, of which the first `valid` are not padding:
+    E + sum e, grad[dofs[rows]] += g (a segment sum), data += H scattered into the CSR data
+    (pattern.scatter_add with the term's Scatter.blocks())."""
+    live = jnp.arange(rows.shape[0]) < valid
+    E = E + jnp.sum(jnp.where(live, out[0], 0.0))
+    if len(out) > 1:
+        grad = grad.at[dofs[rows].ravel()].add(jnp.where(live[:, None], out[1], 0.0).ravel())
+    if len(out) > 2:
+        data = scatter_add(data, jnp.where(live[:, None, None], out[2], 0.0), rows, *blocks)
+    return E, grad, data
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
@@ -614,11 +692,9 @@ class Assembler:
         pattern entry (8 bytes each against 16: value, column, position); positions None: K
         has the pattern's own structure and data."""
         if id(t) not in self._quadratics:
-            E, g, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
-            for s, (e, ge, H) in t.calls("full", np.zeros(self.ndofs)):
-                E += float(e.sum())
-                np.add.at(g, t.global_dofs[s:s + len(ge)], ge)
-                scatter.add(data, H, s)
+            E, g, data = self._sum(t, scatter, "full", jnp.zeros(self.ndofs), jnp.zeros(()),
+                                   jnp.zeros(self.ndofs), jnp.zeros(self.nnz))
+            E, g, data = float(E), np.array(g), np.array(data)
             own = np.flatnonzero(data)
             if 2 * own.size < self.nnz:
                 index = np.int32 if self.nnz < 2 ** 31 else np.int64
@@ -630,41 +706,53 @@ class Assembler:
             self._quadratics[id(t)] = (E, g, K, own)
         return self._quadratics[id(t)]
 
+    @staticmethod
+    def _sum(t, scatter, kind, x, E, grad=None, data=None):
+        """E, grad, data (on the device) plus the term's energy, gradient and Hessian at x
+        (as far as the kernel `kind` gives them), call by call (accumulate)."""
+        for _, valid, rows, out in t.calls(kind, x):
+            E, grad, data = accumulate(E, grad, data, valid, rows, t.device["dofs"], out,
+                                       None if data is None else scatter.blocks())
+        return E, grad, data
+
     def energy(self, x, terms=None):
-        E = 0.0
+        E, x_device = jnp.zeros(()), jnp.asarray(x)
+        quadratic = 0.0
         for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms or t.residual:
                 continue
             if t.is_quadratic:
                 E0, g0, K, _ = self._quadratic(t, scatter)
-                E += E0 + g0 @ x + 0.5 * x @ (K @ x)
+                quadratic += E0 + g0 @ x + 0.5 * x @ (K @ x)
             else:
-                E += float(t.run("energy", x)[0].sum())
-        return E
+                E = self._sum(t, scatter, "energy", x_device, E)[0]
+        return float(E) + quadratic
 
     def evaluate(self, x, terms=None, hessian=True):
         """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian (None
-        unless asked).  Quadratic terms are assembled once and then applied as matrices."""
-        E, grad = 0.0, np.zeros(self.ndofs)
-        data = np.zeros(self.nnz) if hessian else None
+        unless asked), summed on the device; only the gradient and the data come back to
+        the host.  Quadratic terms are assembled once and then applied as (host) matrices."""
+        kind = "full" if hessian else "gradient"
+        E, grad, x_device = jnp.zeros(()), jnp.zeros(self.ndofs), jnp.asarray(x)
+        data = jnp.zeros(self.nnz) if hessian else None
+        quadratic = []
         for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
                 continue
             if t.is_quadratic:
-                E0, g0, K, positions = self._quadratic(t, scatter)
-                Kx = K @ x
-                E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
-                grad = grad + g0 + Kx
-                if hessian and positions is None:
-                    data += K.data
-                elif hessian:
-                    data[positions] += K.data
-                continue
-            out = t.run("full" if hessian else "gradient", x)
-            E += float(out[0].sum())
-            grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
-            if hessian:
-                scatter.add(data, out[2])
+                quadratic.append((t, scatter))
+            else:
+                E, grad, data = self._sum(t, scatter, kind, x_device, E, grad, data)
+        E, grad, data = float(E), np.array(grad), None if data is None else np.array(data)
+        for t, scatter in quadratic:
+            E0, g0, K, positions = self._quadratic(t, scatter)
+            Kx = K @ x
+            E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
+            grad += g0 + Kx
+            if hessian and positions is None:
+                data += K.data
+            elif hessian:
+                data[positions] += K.data
         return E, grad, data
 
     def gradient(self, x, terms=None):

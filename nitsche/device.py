@@ -1,0 +1,31 @@
+"""Arrays held on the device (the accelerator JAX computes on, or the CPU).
+
+The per-element data of the terms and the scatters of the pattern are put on the device
+once, at set-up; each assembly then moves only the dof vector x there and the gradient
+(ndofs) and the Hessian's CSR data (nnz) back, for the host's sparse solvers.
+
+On the CPU, jax.device_put of a NumPy array whose data are 64-byte aligned aliases it
+instead of copying it, so on_device copies once into aligned memory and the data are held
+once; a read-only NumPy view of a device array (host) is free there, a transfer from a GPU.
+"""
+import jax
+import numpy as np
+
+ALIGNMENT = 64  # bytes: what the CPU client needs to alias a host buffer
+
+
+def on_device(a, dtype=None):
+    """a (array-like) as a JAX array on the default device, held once: copied into aligned
+    host memory, which device_put on the CPU aliases (a GPU copies it to its memory and the
+    host buffer is dropped)."""
+    a = np.asarray(a, dtype)
+    buf = np.empty(a.nbytes + ALIGNMENT, np.uint8)
+    start = -buf.ctypes.data % ALIGNMENT
+    aligned = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    aligned[...] = a
+    return jax.device_put(aligned)
+
+
+def host(a):
+    """A read-only NumPy view of a JAX array (on the CPU without a copy)."""
+    return np.asarray(a)
