@@ -111,14 +111,15 @@ def global_names(code):
 
 
 @partial(jax.jit, static_argnums=(0, 1))
-def take(chunk, columns, start, count, elements, x, dofs, tables, rest, theta):
+def take(chunk, columns, bounds, elements, x, dofs, tables, rest, theta):
     """The arguments of one kernel call, gathered on the device: the rows e_i, i = start ..
-    start + chunk - 1 clamped to count - 1 (the padding repeats the last element), of the
+    start + chunk - 1 clamped to count - 1 (bounds = (start, count); the padding repeats the
+    last element), of the
     elements (all: e_i = i; or the given ones: e_i = elements[i]); each field's element
     dofs x[dofs[e_i, columns[f]:columns[f + 1]]]; the per-element tables, per-point data and
     the parameters theta (one row: the same on every element).  Returns (rows, tables,
     dofs of each field, rest, theta per row)."""
-    rows = jnp.minimum(start + jnp.arange(chunk), count - 1)
+    rows = jnp.minimum(bounds[0] + jnp.arange(chunk), bounds[1] - 1)
     if elements is not None:
         rows = elements[rows]
 
@@ -454,18 +455,22 @@ class Term:
     def calls(self, kind, x, elements=None):
         """Apply a kernel to all elements (or to the given ones) for the global dof vector x
         (NumPy or on the device), call by call, on the device (take): yields (the first
-        element of the call, how many of its rows are elements (the rest is padding), the
-        rows (chunk,) and the outputs (chunk, ...) of the call)."""
+        element of the call, how many of its rows are elements (the rest is padding), its
+        bounds (start, count) on the device, its rows (chunk,) and its outputs (chunk, ...)).
+        What crosses to the device: x (unless there already), the parameters, the elements
+        if given, and two integers a call."""
         nel = self.nel if elements is None else len(elements)
-        x = jnp.asarray(x)
-        elements = jnp.asarray(elements, self.device["dofs"].dtype) if nel and elements is not None else None
+        x = jax.device_put(x)
+        elements = jax.device_put(np.asarray(elements, self.device["dofs"].dtype)) \
+            if nel and elements is not None else None
         d = self.device
         per_point = (d["W"], d["x"], d["n"], d["h"], self._alpha0)
-        theta = jnp.asarray(self.parameters.values[self.parameter_index])
+        theta = jax.device_put(self.parameters.values[self.parameter_index])
         for s, chunk in self.blocks(nel):
-            rows, tables, us, rest, t = take(chunk, self.columns, s, nel, elements, x, d["dofs"], self.tables,
+            bounds = jax.device_put(np.array([s, nel], np.int32))
+            rows, tables, us, rest, t = take(chunk, self.columns, bounds, elements, x, d["dofs"], self.tables,
                                              per_point, theta)
-            yield s, max(0, min(chunk, nel - s)), rows, self.kernel(kind, chunk)(*tables, *us, *rest, t)
+            yield s, max(0, min(chunk, nel - s)), bounds, rows, self.kernel(kind, chunk)(*tables, *us, *rest, t)
 
     def run(self, kind, x, elements=None):
         """The kernel's outputs on all elements (or on the given ones), on the host: each
@@ -473,7 +478,7 @@ class Term:
         one call's)."""
         nel = self.nel if elements is None else len(elements)
         outs = None
-        for s, valid, _, got in self.calls(kind, x, elements):
+        for s, valid, _, _, got in self.calls(kind, x, elements):
             if outs is None:
                 outs = [np.empty((nel,) + o.shape[1:], o.dtype) for o in got]
             for out, o in zip(outs, got):
@@ -489,18 +494,27 @@ def _rows(a, dtype=float):
 
 
 @partial(jax.jit, donate_argnums=(1, 2))
-def accumulate(E, grad, data, valid, rows, dofs, out, blocks):
+def accumulate(E, grad, data, bounds, rows, dofs, out, blocks):
     """E, grad, data plus the outputs (energies e[, gradients g[, Hessians H]]) of a kernel
-    call on the elements `rows`, of which the first `valid` are not padding:
+    call on the elements `rows`, of which those before bounds[1] - bounds[0] are not padding:
     E + sum e, grad[dofs[rows]] += g (a segment sum), data += H scattered into the CSR data
     (pattern.scatter_add with the term's Scatter.blocks())."""
-    live = jnp.arange(rows.shape[0]) < valid
+    live = bounds[0] + jnp.arange(rows.shape[0]) < bounds[1]
     E = E + jnp.sum(jnp.where(live, out[0], 0.0))
     if len(out) > 1:
         grad = grad.at[dofs[rows].ravel()].add(jnp.where(live[:, None], out[1], 0.0).ravel())
     if len(out) > 2:
         data = scatter_add(data, jnp.where(live[:, None, None], out[2], 0.0), rows, *blocks)
     return E, grad, data
+
+
+zeros = jax.jit(jnp.zeros, static_argnums=0)  # made on the device (nothing crosses)
+
+
+def to_host(E, grad, data):
+    """E (a float), grad and data (writable NumPy arrays; data None stays None) from the device."""
+    E, grad, data = jax.device_get((E, grad, data))
+    return float(E), np.array(grad), None if data is None else np.array(data)
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
@@ -692,9 +706,8 @@ class Assembler:
         pattern entry (8 bytes each against 16: value, column, position); positions None: K
         has the pattern's own structure and data."""
         if id(t) not in self._quadratics:
-            E, g, data = self._sum(t, scatter, "full", jnp.zeros(self.ndofs), jnp.zeros(()),
-                                   jnp.zeros(self.ndofs), jnp.zeros(self.nnz))
-            E, g, data = float(E), np.array(g), np.array(data)
+            E, g, data = to_host(*self._sum(t, scatter, "full", zeros(self.ndofs),
+                                            zeros(()), zeros(self.ndofs), zeros(self.nnz)))
             own = np.flatnonzero(data)
             if 2 * own.size < self.nnz:
                 index = np.int32 if self.nnz < 2 ** 31 else np.int64
@@ -710,13 +723,13 @@ class Assembler:
     def _sum(t, scatter, kind, x, E, grad=None, data=None):
         """E, grad, data (on the device) plus the term's energy, gradient and Hessian at x
         (as far as the kernel `kind` gives them), call by call (accumulate)."""
-        for _, valid, rows, out in t.calls(kind, x):
-            E, grad, data = accumulate(E, grad, data, valid, rows, t.device["dofs"], out,
+        for _, _, bounds, rows, out in t.calls(kind, x):
+            E, grad, data = accumulate(E, grad, data, bounds, rows, t.device["dofs"], out,
                                        None if data is None else scatter.blocks())
         return E, grad, data
 
     def energy(self, x, terms=None):
-        E, x_device = jnp.zeros(()), jnp.asarray(x)
+        E, x_device = zeros(()), jax.device_put(x)
         quadratic = 0.0
         for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms or t.residual:
@@ -726,15 +739,15 @@ class Assembler:
                 quadratic += E0 + g0 @ x + 0.5 * x @ (K @ x)
             else:
                 E = self._sum(t, scatter, "energy", x_device, E)[0]
-        return float(E) + quadratic
+        return float(jax.device_get(E)) + quadratic
 
     def evaluate(self, x, terms=None, hessian=True):
         """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian (None
         unless asked), summed on the device; only the gradient and the data come back to
         the host.  Quadratic terms are assembled once and then applied as (host) matrices."""
         kind = "full" if hessian else "gradient"
-        E, grad, x_device = jnp.zeros(()), jnp.zeros(self.ndofs), jnp.asarray(x)
-        data = jnp.zeros(self.nnz) if hessian else None
+        E, grad, x_device = zeros(()), zeros(self.ndofs), jax.device_put(x)
+        data = zeros(self.nnz) if hessian else None
         quadratic = []
         for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
@@ -743,7 +756,7 @@ class Assembler:
                 quadratic.append((t, scatter))
             else:
                 E, grad, data = self._sum(t, scatter, kind, x_device, E, grad, data)
-        E, grad, data = float(E), np.array(grad), None if data is None else np.array(data)
+        E, grad, data = to_host(E, grad, data)
         for t, scatter in quadratic:
             E0, g0, K, positions = self._quadratic(t, scatter)
             Kx = K @ x

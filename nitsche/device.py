@@ -14,16 +14,21 @@ import numpy as np
 ALIGNMENT = 64  # bytes: what the CPU client needs to alias a host buffer
 
 
-def on_device(a, dtype=None):
-    """a (array-like) as a JAX array on the default device, held once: copied into aligned
-    host memory, which device_put on the CPU aliases (a GPU copies it to its memory and the
-    host buffer is dropped)."""
+def aligned(a, dtype=None):
+    """A copy of a (array-like) in host memory that starts on an ALIGNMENT boundary."""
     a = np.asarray(a, dtype)
     buf = np.empty(a.nbytes + ALIGNMENT, np.uint8)
     start = -buf.ctypes.data % ALIGNMENT
-    aligned = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
-    aligned[...] = a
-    return jax.device_put(aligned)
+    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out[...] = a
+    return out
+
+
+def on_device(a, dtype=None):
+    """a (array-like) as a JAX array on the default device, held once: an aligned copy,
+    which device_put on the CPU aliases (a GPU copies it to its memory and the host copy is
+    dropped)."""
+    return jax.device_put(aligned(a, dtype))
 
 
 def host(a):

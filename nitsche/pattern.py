@@ -173,7 +173,7 @@ class Scatter:
     """The element matrices (E, k, k) on one local-to-global map D into the CSR data of a
     Pattern, by blocks (module docstring): the position P (E, r, r) of the first entry of
     each pair of runs, and the length of the rows of each run's group (E, r); held on the
-    device (assembly.on_device) for scatter_add."""
+    device (device.on_device) for scatter_add."""
 
     def __init__(self, pattern, D, first, position):
         E, k = D.shape
@@ -205,9 +205,8 @@ class Scatter:
     def add(self, data, H, start=0):
         """data plus the element matrices H (e, k, k) of the elements start, start + 1, ...
         (a new array: scatter_add)."""
-        e = H.shape[0]
-        rows = np.arange(start, start + e)
-        return scatter_add(data, H, rows, *self.blocks())
+        rows = jax.device_put(np.arange(start, start + H.shape[0]))
+        return scatter_add(jax.device_put(data), jax.device_put(H), rows, *self.blocks())
 
 
 def positions(P, stride, run, shift):

@@ -1,0 +1,153 @@
+"""The per-step assembly on the device path (nitsche.device) against an earlier checkout of
+the code, side by side in one run.
+
+For each case the problem is set up in a fresh process per code version (this checkout:
+"now"; the one given by --before: "before"), one after the other (one heavy process at a
+time), and at x = the initial guess + 1e-3 noise it times:
+  - the first Hessian assembly (loads or compiles the kernels and, now, the gathers and
+    scatters of this mesh) and then `--repeat` Hessian assemblies (Assembler.evaluate: J,
+    gradient, CSR data) and gradient assemblies (J and gradient), wall and CPU time
+    (user + sys of the process, all threads), medians;
+  - memory: the resident set after set-up and its peak during the steps (VmHWM, reset
+    after set-up), in MB.
+J, the gradient and the Hessian data of the two versions are compared (max relative
+difference).  Writes benchmarks/results/device_path.json.  Usage:
+
+    git archive <commit> nitsche | tar -x -C /tmp/before     # the earlier code
+    python benchmarks/device_path.py --before /tmp/before [--repeat 5] [--cases obstacle:6 ...]
+
+--platform cpu|cuda sets JAX_PLATFORMS for the measured processes; on a machine with an
+NVIDIA GPU install JAX's CUDA wheels first (pip install -U "jax[cuda12]") and run with
+--platform cuda: the per-element data then live in GPU memory and only x, the gradient and
+the CSR data cross (the sparse solvers stay on the host).
+"""
+import argparse
+import json
+import os
+import pickle
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from run_ratio import write_results  # noqa: E402
+
+CASES = {"obstacle:6": ("obstacle", 6, {}), "obstacle:7": ("obstacle", 7, {}),
+         "two-membrane:6": ("two-membrane", 6, {"compare": "false"}),
+         "membrane-solid-tet:3": ("membrane-solid", 3, {"cells": "tet"})}
+
+
+def status(key):
+    """A line of /proc/self/status in MB (VmRSS, VmHWM)."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(key + ":"):
+                return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def cpu():
+    t = os.times()
+    return t.user + t.system
+
+
+def child(spec, repeat, dump):
+    """Measure one case in this process (the code on sys.path) and print a JSON row."""
+    import jax
+    import numpy as np
+    from nitsche.cases import get
+    name, level, sets = CASES[spec]
+    case = get(name)
+    t0 = time.perf_counter()
+    problem = case.problem(level, 1, case.parameters(sets))
+    setup = time.perf_counter() - t0
+    a = problem.assembler
+    x = problem.initial(None) + 1e-3 * np.random.default_rng(0).standard_normal(problem.ndofs)
+    rss = status("VmRSS")
+    with open("/proc/self/clear_refs", "w") as fh:  # reset VmHWM
+        fh.write("5")
+    w, c = time.perf_counter(), cpu()
+    E, g, data = a.evaluate(x)
+    first = (time.perf_counter() - w, cpu() - c)
+    steps = {"hessian": [], "gradient": []}
+    for _ in range(repeat):
+        for kind, hessian in (("hessian", True), ("gradient", False)):
+            w, c = time.perf_counter(), cpu()
+            a.evaluate(x, hessian=hessian)
+            steps[kind].append((time.perf_counter() - w, cpu() - c))
+    with open(dump, "wb") as fh:
+        pickle.dump((E, np.asarray(g), np.asarray(data)), fh)
+    row = dict(unknowns=int(problem.free.size), nnz=int(a.nnz), elements=int(sum(t.nel for t in a.terms)),
+               setup_seconds=setup, first_wall=first[0], first_cpu=first[1],
+               rss_after_setup_mb=rss, step_peak_rss_mb=status("VmHWM"), device=str(jax.devices()[0]))
+    for kind, v in steps.items():
+        row[f"{kind}_wall"] = statistics.median(s[0] for s in v)
+        row[f"{kind}_cpu"] = statistics.median(s[1] for s in v)
+    print("ROW " + json.dumps(row), flush=True)
+
+
+def measure(spec, code, repeat, platform, dump):
+    env = dict(os.environ, PYTHONPATH=code, JAX_PLATFORMS=platform)
+    out = subprocess.run([sys.executable, os.path.abspath(__file__), "--child", spec, "--repeat", str(repeat),
+                          "--dump", dump], env=env, capture_output=True, text=True, check=False)
+    rows = [line[4:] for line in out.stdout.splitlines() if line.startswith("ROW ")]
+    if not rows:
+        raise RuntimeError(f"{spec} with {code} failed:\n{out.stderr[-3000:]}")
+    return json.loads(rows[0])
+
+
+def relative(u, v):
+    import numpy as np
+    u, v = np.asarray(u, float), np.asarray(v, float)
+    return float(np.abs(u - v).max() / max(np.abs(v).max(), 1e-300))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--before", help="a directory holding the earlier nitsche package")
+    ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--platform", default="cpu", help="JAX_PLATFORMS of the measured processes (cpu, cuda)")
+    ap.add_argument("--out", default="device_path.json")
+    ap.add_argument("--child")
+    ap.add_argument("--dump")
+    args = ap.parse_args()
+    if args.child:
+        return child(args.child, args.repeat, args.dump)
+    now = os.path.dirname(HERE)
+    versions = [("before", os.path.abspath(args.before))] if args.before else []
+    versions.append(("now", now))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for spec in args.cases:
+            load = os.getloadavg()[0]
+            got = {v: measure(spec, code, args.repeat, args.platform, os.path.join(tmp, v)) for v, code in versions}
+            row = dict(case=spec, load=load, **{f"{v}_{k}": val for v, r in got.items() for k, val in r.items()})
+            if args.before:
+                (E0, g0, d0), (E1, g1, d1) = (pickle.load(open(os.path.join(tmp, v), "rb")) for v in ("before", "now"))
+                row.update(rel_energy=abs(E1 - E0) / abs(E0), rel_gradient=relative(g1, g0), rel_hessian=relative(d1, d0))
+                for k in ("hessian_wall", "hessian_cpu", "gradient_wall", "gradient_cpu", "step_peak_rss_mb"):
+                    row[f"ratio_{k}"] = got["now"][k] / got["before"][k]
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+    print(f"\n{'case':22s} {'version':7s} {'unknowns':>9s} {'hess wall':>9s} {'hess cpu':>9s} {'grad wall':>9s} "
+          f"{'grad cpu':>9s} {'first':>7s} {'rss MB':>8s} {'peak MB':>8s}")
+    for r in rows:
+        for v, _ in versions:
+            print(f"{r['case']:22s} {v:7s} {r[f'{v}_unknowns']:9d} {r[f'{v}_hessian_wall']:9.3f} "
+                  f"{r[f'{v}_hessian_cpu']:9.3f} {r[f'{v}_gradient_wall']:9.3f} {r[f'{v}_gradient_cpu']:9.3f} "
+                  f"{r[f'{v}_first_wall']:7.2f} {r[f'{v}_rss_after_setup_mb']:8.0f} {r[f'{v}_step_peak_rss_mb']:8.0f}")
+        if args.before:
+            print(f"{'':22s} now/before: hessian wall {r['ratio_hessian_wall']:.2f}, cpu {r['ratio_hessian_cpu']:.2f}; "
+                  f"gradient wall {r['ratio_gradient_wall']:.2f}, cpu {r['ratio_gradient_cpu']:.2f}; "
+                  f"peak {r['ratio_step_peak_rss_mb']:.2f}; max rel. diff J {r['rel_energy']:.1e}, "
+                  f"gradient {r['rel_gradient']:.1e}, Hessian {r['rel_hessian']:.1e}")
+    write_results(args.out, rows, "per-step assembly, device path (now) against --before, medians of "
+                  f"{args.repeat}; CPU = user + sys of the process; load = 1-min load average at the case's start")
+
+
+if __name__ == "__main__":
+    main()
