@@ -35,7 +35,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from run_ratio import write_results  # noqa: E402
 
-CASES = {"obstacle:6": ("obstacle", 6, {}), "obstacle:7": ("obstacle", 7, {}),
+CASES = {"obstacle:4": ("obstacle", 4, {}), "obstacle:6": ("obstacle", 6, {}), "obstacle:7": ("obstacle", 7, {}),
          "two-membrane:6": ("two-membrane", 6, {"compare": "false"}),
          "membrane-solid-tet:3": ("membrane-solid", 3, {"cells": "tet"})}
 
@@ -50,8 +50,8 @@ def status(key):
 
 
 def cpu():
-    t = os.times()
-    return t.user + t.system
+    """CPU seconds of this process, all threads (user + sys)."""
+    return time.process_time()
 
 
 def child(spec, repeat, dump):
@@ -108,6 +108,8 @@ def relative(u, v):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--before", help="a directory holding the earlier nitsche package")
+    ap.add_argument("--also", nargs="*", default=[], metavar="NAME=DIR",
+                    help="further versions to measure side by side (e.g. a design that was rejected)")
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--platform", default="cpu", help="JAX_PLATFORMS of the measured processes (cpu, cuda)")
@@ -119,6 +121,7 @@ def main():
         return child(args.child, args.repeat, args.dump)
     now = os.path.dirname(HERE)
     versions = [("before", os.path.abspath(args.before))] if args.before else []
+    versions += [(v.split("=", 1)[0], os.path.abspath(v.split("=", 1)[1])) for v in args.also]
     versions.append(("now", now))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -127,24 +130,30 @@ def main():
             got = {v: measure(spec, code, args.repeat, args.platform, os.path.join(tmp, v)) for v, code in versions}
             row = dict(case=spec, load=load, **{f"{v}_{k}": val for v, r in got.items() for k, val in r.items()})
             if args.before:
-                (E0, g0, d0), (E1, g1, d1) = (pickle.load(open(os.path.join(tmp, v), "rb")) for v in ("before", "now"))
-                row.update(rel_energy=abs(E1 - E0) / abs(E0), rel_gradient=relative(g1, g0), rel_hessian=relative(d1, d0))
-                for k in ("hessian_wall", "hessian_cpu", "gradient_wall", "gradient_cpu", "step_peak_rss_mb"):
-                    row[f"ratio_{k}"] = got["now"][k] / got["before"][k]
+                E0, g0, d0 = pickle.load(open(os.path.join(tmp, "before"), "rb"))
+                for v, _ in versions[1:]:
+                    E1, g1, d1 = pickle.load(open(os.path.join(tmp, v), "rb"))
+                    row.update({f"{v}_rel_energy": abs(E1 - E0) / abs(E0), f"{v}_rel_gradient": relative(g1, g0),
+                                f"{v}_rel_hessian": relative(d1, d0)})
+                    for k in ("hessian_wall", "hessian_cpu", "gradient_wall", "gradient_cpu", "first_cpu",
+                              "rss_after_setup_mb", "step_peak_rss_mb"):
+                        row[f"{v}_ratio_{k}"] = got[v][k] / got["before"][k]
             rows.append(row)
             print(json.dumps(row), flush=True)
-    print(f"\n{'case':22s} {'version':7s} {'unknowns':>9s} {'hess wall':>9s} {'hess cpu':>9s} {'grad wall':>9s} "
+    print(f"\n{'case':22s} {'version':10s} {'unknowns':>9s} {'hess wall':>9s} {'hess cpu':>9s} {'grad wall':>9s} "
           f"{'grad cpu':>9s} {'first':>7s} {'rss MB':>8s} {'peak MB':>8s}")
     for r in rows:
         for v, _ in versions:
-            print(f"{r['case']:22s} {v:7s} {r[f'{v}_unknowns']:9d} {r[f'{v}_hessian_wall']:9.3f} "
+            print(f"{r['case']:22s} {v:10s} {r[f'{v}_unknowns']:9d} {r[f'{v}_hessian_wall']:9.3f} "
                   f"{r[f'{v}_hessian_cpu']:9.3f} {r[f'{v}_gradient_wall']:9.3f} {r[f'{v}_gradient_cpu']:9.3f} "
                   f"{r[f'{v}_first_wall']:7.2f} {r[f'{v}_rss_after_setup_mb']:8.0f} {r[f'{v}_step_peak_rss_mb']:8.0f}")
-        if args.before:
-            print(f"{'':22s} now/before: hessian wall {r['ratio_hessian_wall']:.2f}, cpu {r['ratio_hessian_cpu']:.2f}; "
-                  f"gradient wall {r['ratio_gradient_wall']:.2f}, cpu {r['ratio_gradient_cpu']:.2f}; "
-                  f"peak {r['ratio_step_peak_rss_mb']:.2f}; max rel. diff J {r['rel_energy']:.1e}, "
-                  f"gradient {r['rel_gradient']:.1e}, Hessian {r['rel_hessian']:.1e}")
+        for v, _ in versions[1:] if args.before else []:
+            print(f"{'':22s} {v}/before: hessian wall {r[f'{v}_ratio_hessian_wall']:.2f}, "
+                  f"cpu {r[f'{v}_ratio_hessian_cpu']:.2f}; gradient wall {r[f'{v}_ratio_gradient_wall']:.2f}, "
+                  f"cpu {r[f'{v}_ratio_gradient_cpu']:.2f}; first cpu {r[f'{v}_ratio_first_cpu']:.2f}; "
+                  f"rss {r[f'{v}_ratio_rss_after_setup_mb']:.2f}, peak {r[f'{v}_ratio_step_peak_rss_mb']:.2f}; "
+                  f"max rel. diff J {r[f'{v}_rel_energy']:.1e}, gradient {r[f'{v}_rel_gradient']:.1e}, "
+                  f"Hessian {r[f'{v}_rel_hessian']:.1e}")
     write_results(args.out, rows, "per-step assembly, device path (now) against --before, medians of "
                   f"{args.repeat}; CPU = user + sys of the process; load = 1-min load average at the case's start")
 

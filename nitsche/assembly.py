@@ -19,12 +19,17 @@ points and jitted on fixed-size chunks of elements, so one compiled kernel
 serves every Newton step and every refinement level.  The sparsity pattern and
 the scatter of element matrices into CSR storage (nitsche.pattern) are computed once
 per mesh.
+
+The per-element data (tabulations, inverse Jacobians, W, x, n, h, alpha0) are put on the
+device once, in the pieces the kernel calls take (Chunked), and kept only there; the
+gather x[dofs], the gradient's bincount and the scatter into the CSR data stay on the host
+with x and the sparse solvers: on XLA they would be programs of the mesh's sizes, compiled
+anew on every level (docs/performance.md, "GPU-ready per-step path").
 """
 import copy
 import hashlib
 import time
 import types
-from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -37,7 +42,7 @@ from .device import host, on_device
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
-from .pattern import Pattern, index_type, scatter_add
+from .pattern import Pattern
 
 # Quadrature points per kernel call: small, large.  Each size is a kernel shape to load (or
 # compile) once per process; a nested chain loads the small set on its coarse levels and
@@ -110,26 +115,43 @@ def global_names(code):
     return tuple(sorted(names))
 
 
-@partial(jax.jit, static_argnums=(0, 1))
-def take(chunk, columns, bounds, elements, x, dofs, tables, rest, theta):
-    """The arguments of one kernel call, gathered on the device: the rows e_i, i = start ..
-    start + chunk - 1 clamped to count - 1 (bounds = (start, count); the padding repeats the
-    last element), of the
-    elements (all: e_i = i; or the given ones: e_i = elements[i]); each field's element
-    dofs x[dofs[e_i, columns[f]:columns[f + 1]]]; the per-element tables, per-point data and
-    the parameters theta (one row: the same on every element).  Returns (rows, tables,
-    dofs of each field, rest, theta per row)."""
-    rows = jnp.minimum(bounds[0] + jnp.arange(chunk), bounds[1] - 1)
-    if elements is not None:
-        rows = elements[rows]
+def _pad(a, n):
+    """Pad axis 0 to length n by repeating the last entry, or zeros for a term without
+    elements on this rank (results for the padding are discarded); only the last (small)
+    chunk of a term is padded."""
+    if a.shape[0] == n:
+        return a
+    if a.shape[0] == 0:
+        return np.zeros((n,) + a.shape[1:], a.dtype)
+    return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
 
-    def of_rows(a, keep_shared):
-        if a.shape[0] == 1:
-            return a if keep_shared else jnp.broadcast_to(a, (chunk,) + a.shape[1:])
-        return a[rows]
-    u = x[dofs[rows]]
-    return (rows, [of_rows(a, True) for a in tables], [u[:, i:j] for i, j in zip(columns[:-1], columns[1:])],
-            [of_rows(a, False) for a in rest], jnp.broadcast_to(theta, (chunk,) + theta.shape))
+
+class Chunked:
+    """Per-element data a[e, ...] held on the device in the pieces that the kernel calls over
+    all elements take (Term.blocks), the last padded (_pad), each put there once
+    (on_device): a call passes its piece as it is, with nothing to gather, pad or copy."""
+
+    def __init__(self, a, blocks):
+        self.shape, self.dtype = a.shape, a.dtype
+        self.starts = np.array([s for s, _ in blocks], dtype=np.int64)
+        self.parts = [on_device(_pad(a[s:s + n], n)) for s, n in blocks]
+
+    def __array__(self, dtype=None, copy=None):
+        """All rows on the host (a copy, for reports)."""
+        return np.concatenate([host(p) for p in self.parts])[:self.shape[0]].astype(dtype or self.dtype)
+
+    def any(self):
+        """Whether any entry is non-zero (the padding repeats entries)."""
+        return any(bool(p.any()) for p in self.parts)
+
+    def rows(self, rows):
+        """The given rows on the host, gathered piece by piece."""
+        piece = np.searchsorted(self.starts, rows, side="right") - 1
+        out = np.empty((len(rows),) + self.shape[1:], self.dtype)
+        for k in np.unique(piece):
+            at = piece == k
+            out[at] = host(self.parts[k])[rows[at] - self.starts[k]]
+        return out
 
 
 def check_arguments(names, fields, label, parameters=()):
@@ -200,11 +222,10 @@ class Term:
         self.fields = [by_name[name] for name, _, _ in self.layout]
         self.chunks = tuple(max(1, c // self.nq) for c in CHUNK_POINTS)  # elements per call
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
-        # tabulation R with the inverse Jacobians J and how its rows are formed (maps); all
-        # per-element data are held once, on the device (on_device), the NumPy copies dropped
-        self.T, self.J, self.maps, self.kept, dofs = [], [], [], [], []
+        # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
+        self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
         for (name, parts, _) in self.layout:
-            T, d = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
+            T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
             mapped = isinstance(T, Mapped)
             # jet components that vanish identically (e.g. P1 Hessians) are left out of the
             # differentiation and enter the density as exact zeros
@@ -212,24 +233,23 @@ class Term:
             if kept.size == 0:
                 kept = np.arange(1)
             if mapped:
-                self.T.append(_rows(T.R))
-                self.J.append(_rows(T.invJ))
+                self.T.append(self._stored(T.R))
+                self.J.append(self._stored(T.invJ))
                 self.maps.append(T.spec)
             else:
-                self.T.append(_rows(T if kept.size == T.shape[2] else T[:, :, kept]))
+                self.T.append(self._stored(T if kept.size == T.shape[2] else T[:, :, kept]))
                 self.J.append(None)
                 self.maps.append(None)
             self.kept.append(tuple(kept.tolist()))
-            dofs.append(d)
-            del T
+            self.dofs.append(dofs)
         self.offsets = [offsets[f.name] for f in self.fields]
-        self.columns = tuple(np.cumsum([0] + [d.shape[1] for d in dofs]).tolist())  # of each field
-        x = np.moveaxis(measure.points, 0, -1) if "x" in names or keep_points else np.zeros((1, self.nq, self.dim))
-        # shared with the terms made by with_pointwise (retabulate changes T and dofs in place)
-        self.device = dict(dofs=None, W=_rows(W), x=_rows(x),
-                           n=_rows(np.moveaxis(n, 0, -1) if self.has_normal else np.zeros((1, self.nq, self.dim))),
-                           h=_rows(np.asarray(measure.h, dtype=float)))
-        self._set_dofs(dofs)
+        self.field_dofs = [d if o == 0 else d + o for d, o in zip(self.dofs, self.offsets)]
+        self.global_dofs = self.field_dofs[0] if len(self.field_dofs) == 1 \
+            else np.concatenate(self.field_dofs, axis=1)  # (one field at offset 0: no copies)
+        # per-point data on the device (Chunked); x and n None where the term keeps none
+        self.data = dict(W=self._chunked(W), h=self._chunked(np.asarray(measure.h, dtype=float)),
+                         x=self._chunked(np.moveaxis(measure.points, 0, -1)) if "x" in names or keep_points else None,
+                         n=self._chunked(np.moveaxis(n, 0, -1)) if self.has_normal else None)
         self.cells = measure.cells  # the cell of measure.mesh that owns each element
         self.alpha0 = np.ones(self.nel)  # per-element data of constraint terms (see functional.ALPHA0)
         self._kernels = {}
@@ -271,60 +291,43 @@ class Term:
         """Tabulate again the fields that live on another mesh than the measure's (after an
         interface changed its pairing, nitsche.sliding), in place: terms made by
         with_pointwise share the new tabulations, and the shapes, hence the kernels, stay."""
-        dofs = [d - o for d, o in zip(self.field_dofs, self.offsets)]
         for i, ((name, parts, _), f) in enumerate(zip(self.layout, self.fields)):
             if f.mesh is self.measure.mesh:
                 continue
-            T, dofs[i] = self.measure.tabulation(f, [o for o, _, _, _ in parts])
+            T, dofs = self.measure.tabulation(f, [o for o, _, _, _ in parts])
             kept = list(self.kept[i])
-            self.T[i] = _rows(T if len(kept) == T.shape[2] else T[:, :, kept])
-        self._set_dofs(dofs)
+            self.T[i] = self._stored(T if len(kept) == T.shape[2] else T[:, :, kept])
+            self.dofs[i] = dofs
+            self.field_dofs[i] = dofs + self.offsets[i]
+        self.global_dofs[...] = np.concatenate(self.field_dofs, axis=1)
 
-    def _set_dofs(self, dofs):
-        """The global dofs (elements, local dofs of all fields) from each field's local dofs,
-        on the device (int32 while they fit)."""
-        G = np.concatenate([d + o for d, o in zip(dofs, self.offsets)], axis=1)
-        self.device["dofs"] = _rows(G, index_type(int(G.max(initial=0)) + 1))
+    def _chunked(self, a):
+        """Per-element data on the device in the pieces of the kernel calls (Chunked)."""
+        return Chunked(np.asarray(a, dtype=float), self.blocks(self.nel))
 
-    @property
-    def global_dofs(self):
-        """The global dofs of every element (elements, local dofs), a read-only host view."""
-        return host(self.device["dofs"])[:self.nel]
+    def _stored(self, a):
+        """A tabulation on the device: one row shared by all elements as it is, else Chunked."""
+        return on_device(a, float) if a.shape[0] == 1 else self._chunked(a)
 
-    @property
-    def field_dofs(self):
-        """The global dofs of every element, field by field (views of global_dofs)."""
-        G = self.global_dofs
-        return [G[:, a:b] for a, b in zip(self.columns[:-1], self.columns[1:])]
+    def _view(self, name):
+        """Per-point data `name` of all elements on the host (zeros where the term keeps none)."""
+        a = self.data[name]
+        return np.asarray(a) if a is not None else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
+                                                                  (self.nel, self.nq, self.dim))
 
-    @property
-    def W(self):
-        """W[e, q]: quadrature weight x Jacobian (x the measure's weight), a host view."""
-        return host(self.device["W"])[:self.nel]
-
-    @property
-    def x(self):
-        """The quadrature points x[e, q, :] (zeros where the term keeps no points), a host view."""
-        return np.broadcast_to(host(self.device["x"]), (self.nel, self.nq, self.dim))
-
-    @property
-    def n(self):
-        """The outward normals n[e, q, :] (zeros on cells), a host view."""
-        return np.broadcast_to(host(self.device["n"]), (self.nel, self.nq, self.dim))
-
-    @property
-    def h(self):
-        """The mesh size h[e] of the cell that owns each element, a host view."""
-        return host(self.device["h"])[:self.nel]
+    W = property(lambda self: self._view("W"), doc="W[e, q]: quadrature weight x Jacobian (a host copy)")
+    x = property(lambda self: self._view("x"), doc="the quadrature points x[e, q, :] (a host copy)")
+    n = property(lambda self: self._view("n"), doc="the outward normals n[e, q, :] (a host copy)")
+    h = property(lambda self: self._view("h"), doc="the mesh size h[e] of the cell that owns each element")
 
     @property
     def alpha0(self):
-        """alpha0 per element (see functional.ALPHA0), a host view."""
-        return host(self._alpha0)[:self.nel]
+        """alpha0 per element (see functional.ALPHA0), a host copy."""
+        return np.asarray(self._alpha0)
 
     @alpha0.setter
     def alpha0(self, values):
-        self._alpha0 = _rows(np.broadcast_to(np.asarray(values, dtype=float), (self.nel,)))
+        self._alpha0 = self._chunked(np.broadcast_to(np.asarray(values, dtype=float), (self.nel,)))
 
     def with_pointwise(self, pointwise):
         """The same term (same tabulations) with another density (not a residual) of the
@@ -355,6 +358,21 @@ class Term:
     def _theta0(self):
         """The parameters the density reads, at their current values (for tracing)."""
         return jnp.asarray(self.parameters.values[self.parameter_index])
+
+    def parameter_data(self, n):
+        """The values of the parameters the density reads, one row per element of a chunk."""
+        return np.broadcast_to(self.parameters.values[self.parameter_index], (n, self.parameter_index.size))
+
+    def per_point(self, i, chunk, rows=None):
+        """The per-point data (W, x, n, h, alpha0) of kernel call i of `chunk` elements: its
+        pieces on the device, or, for the given rows (padded), gathered on the host; zeros
+        (made on the device) for x, n where the term keeps none."""
+        def one(a, shape):
+            if a is None:
+                return zeros((chunk,) + shape)
+            return a.parts[i] if rows is None else a.rows(rows)
+        d, point = self.data, (self.nq, self.dim)
+        return [one(d["W"], ()), one(d["x"], point), one(d["n"], point), one(d["h"], ()), one(self._alpha0, ())]
 
     def _point_fn(self, by_field=False):
         """The density w(z, x, n, h, a, t) of the kept jet components z of all fields (one
@@ -434,8 +452,9 @@ class Term:
             args = [jax.ShapeDtypeStruct((1 if a.shape[0] == 1 else chunk,) + a.shape[1:], jnp.float64)
                     for a in self.tables]
             args += [jax.ShapeDtypeStruct((chunk, k), jnp.float64) for _, k in self.sizes]
-            args += [jax.ShapeDtypeStruct((chunk,) + a.shape[1:], jnp.float64)
-                     for a in (self.W, self.x, self.n, self.h, self.alpha0, self.parameter_index[None])]
+            point = (self.nq, self.dim)
+            args += [jax.ShapeDtypeStruct((chunk,) + shape, jnp.float64)  # W, x, n, h, alpha0, parameters
+                     for shape in ((self.nq,), point, point, (), (), (self.parameter_index.size,))]
             t = time.perf_counter()
             _COMPILED[key] = jax.jit(fn).lower(*args).compile()
             compile_seconds[0] += time.perf_counter() - t
@@ -453,68 +472,36 @@ class Term:
             [(s, small) for s in range(whole, max(nel, whole + 1), small)]
 
     def calls(self, kind, x, elements=None):
-        """Apply a kernel to all elements (or to the given ones) for the global dof vector x
-        (NumPy or on the device), call by call, on the device (take): yields (the first
-        element of the call, how many of its rows are elements (the rest is padding), its
-        bounds (start, count) on the device, its rows (chunk,) and its outputs (chunk, ...)).
-        What crosses to the device: x (unless there already), the parameters, the elements
-        if given, and two integers a call."""
+        """Apply a kernel to all elements (or to the given ones) for the global dof vector x,
+        call by call: yields (the first element of the call, its outputs without padding).
+        Over all elements a call passes the pieces of the per-element data stored on the
+        device (Chunked) as they are; what crosses per call is the element dofs x[dofs] (a
+        gather on the host, where x lives) and the parameters, and back the outputs (on the
+        CPU without a copy); given elements, their rows are gathered on the host."""
+        dofs = self.field_dofs if elements is None else [d[elements] for d in self.field_dofs]
+        us = [x[d] for d in dofs]  # (host: x and the sparse solvers' data stay there)
         nel = self.nel if elements is None else len(elements)
-        x = jax.device_put(x)
-        elements = jax.device_put(np.asarray(elements, self.device["dofs"].dtype)) \
-            if nel and elements is not None else None
-        d = self.device
-        per_point = (d["W"], d["x"], d["n"], d["h"], self._alpha0)
-        theta = jax.device_put(self.parameters.values[self.parameter_index])
-        for s, chunk in self.blocks(nel):
-            bounds = jax.device_put(np.array([s, nel], np.int32))
-            rows, tables, us, rest, t = take(chunk, self.columns, bounds, elements, x, d["dofs"], self.tables,
-                                             per_point, theta)
-            yield s, max(0, min(chunk, nel - s)), bounds, rows, self.kernel(kind, chunk)(*tables, *us, *rest, t)
+        for i, (s, chunk) in enumerate(self.blocks(nel)):
+            rows = None if elements is None else _pad(np.asarray(elements[s:s + chunk]), chunk)
+            Ts = [a if a.shape[0] == 1 else a.parts[i] if rows is None else a.rows(rows) for a in self.tables]
+            u = [_pad(a[s:s + chunk], chunk) for a in us]
+            out = self.kernel(kind, chunk)(*Ts, *u, *self.per_point(i, chunk, rows), self.parameter_data(chunk))
+            yield s, [host(o)[:max(0, min(chunk, nel - s))] for o in out]
 
     def run(self, kind, x, elements=None):
-        """The kernel's outputs on all elements (or on the given ones), on the host: each
-        call's outputs copied into arrays of all elements as they come (peak: one copy plus
-        one call's)."""
+        """The kernel's outputs on all elements (or on the given ones): each call's outputs
+        copied into arrays of all elements as they come (peak: one copy plus one call's)."""
         nel = self.nel if elements is None else len(elements)
         outs = None
-        for s, valid, _, _, got in self.calls(kind, x, elements):
+        for s, got in self.calls(kind, x, elements):
             if outs is None:
                 outs = [np.empty((nel,) + o.shape[1:], o.dtype) for o in got]
             for out, o in zip(outs, got):
-                out[s:s + valid] = host(o)[:valid]
+                out[s:s + len(o)] = o
         return outs
 
 
-def _rows(a, dtype=float):
-    """Per-element data on the device (on_device); no elements: one row of zeros (the padding
-    of a term without elements on this rank, whose results are discarded)."""
-    a = np.asarray(a)
-    return on_device(a if a.shape[0] else np.zeros((1,) + a.shape[1:]), dtype)
-
-
-@partial(jax.jit, donate_argnums=(1, 2))
-def accumulate(E, grad, data, bounds, rows, dofs, out, blocks):
-    """E, grad, data plus the outputs (energies e[, gradients g[, Hessians H]]) of a kernel
-    call on the elements `rows`, of which those before bounds[1] - bounds[0] are not padding:
-    E + sum e, grad[dofs[rows]] += g (a segment sum), data += H scattered into the CSR data
-    (pattern.scatter_add with the term's Scatter.blocks())."""
-    live = bounds[0] + jnp.arange(rows.shape[0]) < bounds[1]
-    E = E + jnp.sum(jnp.where(live, out[0], 0.0))
-    if len(out) > 1:
-        grad = grad.at[dofs[rows].ravel()].add(jnp.where(live[:, None], out[1], 0.0).ravel())
-    if len(out) > 2:
-        data = scatter_add(data, jnp.where(live[:, None, None], out[2], 0.0), rows, *blocks)
-    return E, grad, data
-
-
 zeros = jax.jit(jnp.zeros, static_argnums=0)  # made on the device (nothing crosses)
-
-
-def to_host(E, grad, data):
-    """E (a float), grad and data (writable NumPy arrays; data None stays None) from the device."""
-    E, grad, data = jax.device_get((E, grad, data))
-    return float(E), np.array(grad), None if data is None else np.array(data)
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):
@@ -706,8 +693,11 @@ class Assembler:
         pattern entry (8 bytes each against 16: value, column, position); positions None: K
         has the pattern's own structure and data."""
         if id(t) not in self._quadratics:
-            E, g, data = to_host(*self._sum(t, scatter, "full", zeros(self.ndofs),
-                                            zeros(()), zeros(self.ndofs), zeros(self.nnz)))
+            E, g, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
+            for s, (e, ge, H) in t.calls("full", np.zeros(self.ndofs)):
+                E += float(e.sum())
+                np.add.at(g, t.global_dofs[s:s + len(ge)], ge)
+                scatter.add(data, H, s)
             own = np.flatnonzero(data)
             if 2 * own.size < self.nnz:
                 index = np.int32 if self.nnz < 2 ** 31 else np.int64
@@ -719,53 +709,41 @@ class Assembler:
             self._quadratics[id(t)] = (E, g, K, own)
         return self._quadratics[id(t)]
 
-    @staticmethod
-    def _sum(t, scatter, kind, x, E, grad=None, data=None):
-        """E, grad, data (on the device) plus the term's energy, gradient and Hessian at x
-        (as far as the kernel `kind` gives them), call by call (accumulate)."""
-        for _, _, bounds, rows, out in t.calls(kind, x):
-            E, grad, data = accumulate(E, grad, data, bounds, rows, t.device["dofs"], out,
-                                       None if data is None else scatter.blocks())
-        return E, grad, data
-
     def energy(self, x, terms=None):
-        E, x_device = zeros(()), jax.device_put(x)
-        quadratic = 0.0
+        E = 0.0
         for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms or t.residual:
                 continue
             if t.is_quadratic:
                 E0, g0, K, _ = self._quadratic(t, scatter)
-                quadratic += E0 + g0 @ x + 0.5 * x @ (K @ x)
+                E += E0 + g0 @ x + 0.5 * x @ (K @ x)
             else:
-                E = self._sum(t, scatter, "energy", x_device, E)[0]
-        return float(jax.device_get(E)) + quadratic
+                E += float(t.run("energy", x)[0].sum())
+        return E
 
     def evaluate(self, x, terms=None, hessian=True):
         """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian (None
-        unless asked), summed on the device; only the gradient and the data come back to
-        the host.  Quadratic terms are assembled once and then applied as (host) matrices."""
-        kind = "full" if hessian else "gradient"
-        E, grad, x_device = zeros(()), zeros(self.ndofs), jax.device_put(x)
-        data = zeros(self.nnz) if hessian else None
-        quadratic = []
+        unless asked).  Quadratic terms are assembled once and then applied as matrices."""
+        E, grad = 0.0, np.zeros(self.ndofs)
+        data = np.zeros(self.nnz) if hessian else None
         for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
                 continue
             if t.is_quadratic:
-                quadratic.append((t, scatter))
-            else:
-                E, grad, data = self._sum(t, scatter, kind, x_device, E, grad, data)
-        E, grad, data = to_host(E, grad, data)
-        for t, scatter in quadratic:
-            E0, g0, K, positions = self._quadratic(t, scatter)
-            Kx = K @ x
-            E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
-            grad += g0 + Kx
-            if hessian and positions is None:
-                data += K.data
-            elif hessian:
-                data[positions] += K.data
+                E0, g0, K, positions = self._quadratic(t, scatter)
+                Kx = K @ x
+                E += 0.0 if t.residual else E0 + g0 @ x + 0.5 * x @ Kx
+                grad = grad + g0 + Kx
+                if hessian and positions is None:
+                    data += K.data
+                elif hessian:
+                    data[positions] += K.data
+                continue
+            out = t.run("full" if hessian else "gradient", x)
+            E += float(out[0].sum())
+            grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
+            if hessian:
+                scatter.add(data, out[2])
         return E, grad, data
 
     def gradient(self, x, terms=None):

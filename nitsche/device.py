@@ -1,8 +1,7 @@
 """Arrays held on the device (the accelerator JAX computes on, or the CPU).
 
-The per-element data of the terms and the scatters of the pattern are put on the device
-once, at set-up; each assembly then moves only the dof vector x there and the gradient
-(ndofs) and the Hessian's CSR data (nnz) back, for the host's sparse solvers.
+The per-element data of the terms are put on the device once, at set-up (assembly.Chunked),
+and kept only there; a kernel call then takes them as they are.
 
 On the CPU, jax.device_put of a NumPy array whose data are 64-byte aligned aliases it
 instead of copying it, so on_device copies once into aligned memory and the data are held

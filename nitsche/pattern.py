@@ -19,10 +19,9 @@ a group have one length (its stride), so the entry (j, l) is at
 
     P[run(j), run(l)] + (j - first(run(j))) stride(run(j)) + (l - first(run(l))).
 """
-import jax
 import numpy as np
 
-from .device import on_device
+CHUNK = 2 ** 20  # element-matrix entries scattered per call
 
 
 def index_type(*sizes):
@@ -172,54 +171,46 @@ class Pattern:
 class Scatter:
     """The element matrices (E, k, k) on one local-to-global map D into the CSR data of a
     Pattern, by blocks (module docstring): the position P (E, r, r) of the first entry of
-    each pair of runs, and the length of the rows of each run's group (E, r); held on the
-    device (device.on_device) for scatter_add."""
+    each pair of runs, and the length of the rows of each run's group (E, r)."""
 
     def __init__(self, pattern, D, first, position):
         E, k = D.shape
         index = pattern.indptr.dtype
-        run = np.repeat(np.arange(first.size), np.diff(np.append(first, k)))  # of each column
-        shift = (np.arange(k) - first[run]).astype(index)  # column within its run
+        self.run = np.repeat(np.arange(first.size), np.diff(np.append(first, k)))  # of each column
+        self.shift = (np.arange(k) - first[self.run]).astype(index)  # column within its run
         lead = D[:, first]
         position = position.reshape(E, first.size, first.size)
         if pattern.offset is None:  # groups of one dof: the group pattern's positions are these
-            P = position.astype(index)  # (a copy: not a view that keeps all maps' positions)
+            self.P = position.astype(index)  # (a copy: not a view that keeps all maps' positions)
         else:
-            P = (pattern.indptr[lead][:, :, None] + pattern.offset[position]
-                 + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(index)
-        stride = None if first.size == k else \
+            self.P = (pattern.indptr[lead][:, :, None] + pattern.offset[position]
+                      + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(index)
+        self.stride = None if first.size == k else \
             (pattern.indptr[lead + 1] - pattern.indptr[lead]).astype(index)  # None: runs of one column
-        # no elements: one row (the padding of an empty term, whose results are discarded)
-        self.P, self.stride = (None if a is None else on_device(a if E else np.zeros((1,) + a.shape[1:], index))
-                               for a in (P, stride))
-        self.run, self.shift = on_device(run, index), on_device(shift)
 
     @property
     def nbytes(self):
         return sum(a.nbytes for a in (self.P, self.stride, self.run, self.shift) if a is not None)
 
-    def blocks(self):
-        """The arguments of scatter_add after H: (P, stride, run, shift) of all elements."""
-        return self.P, self.stride, self.run, self.shift
+    def positions(self, elements=slice(None)):
+        """The positions in the CSR data of the entries (j, l) of the element matrices of the
+        given elements: P[run(j), run(l)] + shift(j) stride[run(j)] + shift(l)."""
+        if self.stride is None:
+            return self.P[elements]
+        P = self.P[elements][:, self.run[:, None], self.run]
+        P += (self.stride[elements][:, self.run] * self.shift)[:, :, None]
+        P += self.shift
+        return P
 
     def add(self, data, H, start=0):
-        """data plus the element matrices H (e, k, k) of the elements start, start + 1, ...
-        (a new array: scatter_add)."""
-        rows = jax.device_put(np.arange(start, start + H.shape[0]))
-        return scatter_add(jax.device_put(data), jax.device_put(H), rows, *self.blocks())
-
-
-def positions(P, stride, run, shift):
-    """The positions in the CSR data of the entries (j, l) of the element matrices whose
-    block positions P (e, r, r) and row lengths stride (e, r) are given:
-    P[run(j), run(l)] + shift(j) stride[run(j)] + shift(l)."""
-    if stride is None:
-        return P
-    return P[:, run[:, None], run] + (stride[:, run] * shift)[:, :, None] + shift
-
-
-@jax.jit
-def scatter_add(data, H, rows, P, stride, run, shift):
-    """data (nnz,) plus the element matrices H (e, k, k) of the elements `rows` of a
-    Scatter's map (P, stride, run, shift: Scatter.blocks()), summed into their positions."""
-    return data.at[positions(P[rows], None if stride is None else stride[rows], run, shift).ravel()].add(H.ravel())
+        """data += the element matrices H (e, k, k) of the elements start, start + 1, ...:
+        by one bincount for all elements with kept positions (runs of one column), else in
+        chunks of elements."""
+        e, k = H.shape[:2]
+        if self.stride is None and e == len(self.P):
+            data += np.bincount(self.P.ravel(), weights=H.ravel(), minlength=data.size)
+            return
+        step = max(1, CHUNK // (k * k))
+        for s in range(0, e, step):
+            np.add.at(data, self.positions(slice(start + s, start + min(s + step, e))).ravel(),
+                      H[s:s + step].ravel())

@@ -1,15 +1,15 @@
-"""The device path of the assembly (nitsche.device, Term.calls, Assembler.evaluate): the
-per-element data are held once, on the device; a Newton step moves only x there and the
-gradient and the Hessian's CSR data back; the results equal the earlier host path (NumPy
-slices of the per-element data, padded by repeating the last element, passed to the same
-kernels; bincount and entry-by-entry sums on the host): the element outputs bitwise, the
-sums to round-off."""
+"""The per-element data on the device (nitsche.device, assembly.Chunked): held once, in the
+pieces the kernel calls take, so that a call passes them without gathering, padding or
+copying; the results equal the earlier path (NumPy slices of the per-element data, padded
+by repeating the last element, passed to the same kernels): the element outputs bitwise,
+J, the gradient and the Hessian to round-off against sums on the host."""
 import jax
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 from nitsche.cases import get
+from nitsche.assembly import Chunked
 from nitsche.device import aligned, host, on_device
 
 CASES = [("obstacle", 1, 2, {}), ("two-membrane", 1, 1, {}), ("elastic-contact", 1, 0, {}),
@@ -26,7 +26,7 @@ def host_outputs(t, kind, x, elements=None):
     for s, chunk in t.blocks(len(e)):
         rows = e[s:s + chunk]
         rows = np.concatenate([rows, np.repeat(rows[-1:], chunk - len(rows))])
-        tables = [host(a) if a.shape[0] == 1 else host(a)[rows] for a in t.tables]
+        tables = [np.asarray(a) if a.shape[0] == 1 else np.asarray(a)[rows] for a in t.tables]
         got = t.kernel(kind, chunk)(*tables, *[np.ascontiguousarray(a[rows]) for a in per_element],
                                     np.broadcast_to(theta, (chunk, theta.size)))
         outs.append([np.asarray(o)[:len(e) - s] for o in got])
@@ -93,7 +93,7 @@ def test_element_subsets_as_a_rank_calls_them():
 def test_a_re_paired_interface_assembles_its_new_tabulations():
     """ironing: after the block moves and the interface is paired anew (a grown pattern),
     the constraint term and its value term (which shares the tabulations) use the new
-    dofs and tabulations on the device."""
+    dofs and tabulations."""
     case = get("ironing")
     problem = case.problem(0, 1, case.parameters({"nx": "12", "nb": "2", "contact": "one-pass"}))
     u1 = problem.by_name["u1"]
@@ -105,43 +105,62 @@ def test_a_re_paired_interface_assembles_its_new_tabulations():
     before = term.global_dofs.copy()
     assert problem.update_pairing(x)
     assert not np.array_equal(term.global_dofs, before)
-    assert values.device["dofs"] is term.device["dofs"] and values.T[1] is term.T[1]
+    assert values.T is term.T and values.global_dofs is term.global_dofs
     assert_same(problem.assembler, x)
     for got, ref in zip(values.run("values", x), host_outputs(values, "values", x)):
         np.testing.assert_array_equal(got, ref)
 
 
-def test_a_step_moves_nothing_implicitly_to_the_device():
-    """Under jax.transfer_guard('disallow') an assembly step runs: nothing crosses
-    implicitly (x, the parameters and each call's two bounds are put there explicitly;
-    the earlier path passed NumPy slices to the kernels, which the guard refuses)."""
-    case = get("two-membrane")
-    problem = case.problem(1, 1, case.parameters({}))
-    a = problem.assembler
-    x = perturbed(problem)
-    E, g, data = a.evaluate(x)  # loads the kernels (their set-up may move constants)
-    with jax.transfer_guard("disallow"):
-        E2, g2, data2 = a.evaluate(x)
-        assert a.energy(x) == pytest.approx(E, rel=1e-14)
-        with pytest.raises(Exception, match="Disallowed host-to-device transfer"):
-            t = next(t for t in a.terms if not t.is_quadratic)
-            host_outputs(t, "full", x)
-    assert E2 == E and np.array_equal(g2, g) and np.array_equal(data2, data)
-    assert g2.flags.writeable and data2.flags.writeable
+def test_a_call_passes_the_stored_pieces():
+    """Over all elements, each kernel call gets the device arrays stored at set-up (the
+    same objects: nothing gathered, padded or copied per call) for the tabulations and the
+    per-point data; only the element dofs u and the parameters come from the host."""
+    case = get("elastic-contact")
+    problem = case.problem(0, 1, case.parameters({}))
+    for t in problem.assembler.terms:
+        stored = [a for a in t.tables if isinstance(a, Chunked)] + \
+            [a for a in (*t.data.values(), t._alpha0) if a is not None]
+        for i, (s, chunk) in enumerate(t.blocks(t.nel)):
+            for a in stored:
+                assert isinstance(a.parts[i], jax.Array) and a.parts[i].shape[0] == chunk
+            W, _, _, h, alpha0 = t.per_point(i, chunk)
+            assert W is t.data["W"].parts[i] and h is t.data["h"].parts[i] and alpha0 is t._alpha0.parts[i]
+        for a in t.tables:
+            assert isinstance(a, (Chunked, jax.Array))
+
+
+def test_chunked_data_keep_their_rows():
+    """Chunked: the pieces of Term.blocks (a large chunk, small ones, the last padded by
+    repeating the last row) give back every row, the rows of a subset across pieces, and
+    whether any entry is non-zero."""
+    a = np.random.default_rng(2).standard_normal((23, 3, 2))
+    blocks = [(0, 10), (10, 4), (14, 4), (18, 4), (22, 4)]
+    c = Chunked(a, blocks)
+    assert [p.shape[0] for p in c.parts] == [10, 4, 4, 4, 4]
+    np.testing.assert_array_equal(np.asarray(c), a)
+    np.testing.assert_array_equal(host(c.parts[-1]), np.repeat(a[-1:], 4, axis=0))
+    rows = np.array([22, 0, 9, 10, 17, 18, 3, 22])
+    np.testing.assert_array_equal(c.rows(rows), a[rows])
+    assert c.any() and not Chunked(np.zeros((5, 2)), [(0, 4), (4, 4)]).any()
+    empty = Chunked(np.zeros((0, 2)), [(0, 4)])
+    assert np.asarray(empty).shape == (0, 2) and host(empty.parts[0]).shape == (4, 2)
 
 
 def test_per_element_data_are_held_once():
-    """On the CPU the terms' NumPy views (W, x, h, alpha0, global_dofs) are the device
-    buffers themselves (no second copy), and on_device aliases its aligned copy."""
-    if jax.devices()[0].platform != "cpu":
-        pytest.skip("the views are transfers on an accelerator")
+    """A term keeps its per-element floating-point data only on the device (no NumPy copy:
+    W, x, h, alpha0 read on the host are copies made on demand), and on_device's aligned
+    copy is aliased by device_put on the CPU (the data are held once there too)."""
     case = get("obstacle")
     problem = case.problem(2, 1, case.parameters({}))
     t = problem.constraint_terms[0]
-    for name, view in (("W", t.W), ("x", t.x), ("h", t.h), ("dofs", t.global_dofs)):
-        assert view.ctypes.data == t.device[name].unsafe_buffer_pointer(), name
-    assert t.alpha0.ctypes.data == t._alpha0.unsafe_buffer_pointer()
-    assert t.global_dofs.dtype == np.int32
+    assert not any(isinstance(v, np.ndarray) and v.dtype == float and v.size >= t.nel
+                   for v in list(vars(t).values()) + list(t.data.values()))
+    assert t.W.shape == (t.nel, t.nq) and t.x.shape == (t.nel, t.nq, 2) and t.h.shape == t.alpha0.shape == (t.nel,)
+    assert t.W is not t.W  # made on demand
+    if jax.devices()[0].platform != "cpu":
+        return
+    for p in t.data["W"].parts + t._alpha0.parts:
+        assert p.unsafe_buffer_pointer() % 64 == 0
     a = np.arange(1000.0).reshape(10, 100)[:, ::2]  # not contiguous
     b = aligned(a)
     assert b.ctypes.data % 64 == 0 and np.array_equal(b, a)
