@@ -38,7 +38,7 @@ import scipy.sparse as sp
 
 from jax.extend.core import Literal
 
-from .device import host, on_device
+from .device import empty, host, on_device
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
@@ -115,6 +115,13 @@ def global_names(code):
     return tuple(sorted(names))
 
 
+def elements_per_call(points, nq):
+    """Elements of nq points in a call of about `points` points: a multiple of 8 from 8 on
+    (so that the calls' pieces of per-element float data start 64-byte aligned: Chunked)."""
+    n = max(1, points // nq)
+    return n - n % 8 if n >= 8 else n
+
+
 def _pad(a, n):
     """Pad axis 0 to length n by repeating the last entry, or zeros for a term without
     elements on this rank (results for the padding are discarded); only the last (small)
@@ -128,24 +135,38 @@ def _pad(a, n):
 
 class Chunked:
     """Per-element data a[e, ...] held on the device in the pieces that the kernel calls over
-    all elements take (Term.blocks), the last padded (_pad), each put there once
-    (on_device): a call passes its piece as it is, with nothing to gather, pad or copy."""
+    all elements take (Term.blocks), the last padded (_pad), so that a call passes its piece
+    as it is, with nothing to gather, pad or copy.  The pieces are put there once from one
+    aligned host copy (device.empty; the calls' first elements are multiples of 8, so
+    every piece starts aligned): on the CPU they alias it, and the host reads that copy
+    (`host`, read-only); elsewhere it is dropped and the host reads the pieces back."""
 
     def __init__(self, a, blocks):
         self.shape, self.dtype = a.shape, a.dtype
         self.starts = np.array([s for s, _ in blocks], dtype=np.int64)
-        self.parts = [on_device(_pad(a[s:s + n], n)) for s, n in blocks]
+        end = blocks[-1][0] + blocks[-1][1]
+        padded = empty((end,) + a.shape[1:])
+        padded[:len(a)] = a
+        padded[len(a):] = a[-1] if len(a) else 0.0
+        self.parts = [jax.device_put(padded[s:s + n]) for s, n in blocks]
+        shared = all(p.unsafe_buffer_pointer() == padded[s:].ctypes.data for p, s in zip(self.parts, self.starts))
+        self.host = padded[:a.shape[0]] if shared else None
+        if shared:
+            self.host.flags.writeable = False
 
     def __array__(self, dtype=None, copy=None):
-        """All rows on the host (a copy, for reports)."""
-        return np.concatenate([host(p) for p in self.parts])[:self.shape[0]].astype(dtype or self.dtype)
+        """All rows on the host."""
+        a = self.host if self.host is not None else np.concatenate([host(p) for p in self.parts])[:self.shape[0]]
+        return a if dtype is None else a.astype(dtype)
 
     def any(self):
         """Whether any entry is non-zero (the padding repeats entries)."""
-        return any(bool(p.any()) for p in self.parts)
+        return bool(np.asarray(self).any())
 
     def rows(self, rows):
-        """The given rows on the host, gathered piece by piece."""
+        """The given rows on the host."""
+        if self.host is not None:
+            return self.host[rows]
         piece = np.searchsorted(self.starts, rows, side="right") - 1
         out = np.empty((len(rows),) + self.shape[1:], self.dtype)
         for k in np.unique(piece):
@@ -220,7 +241,7 @@ class Term:
         n = measure.normals
         self.has_normal = n is not None
         self.fields = [by_name[name] for name, _, _ in self.layout]
-        self.chunks = tuple(max(1, c // self.nq) for c in CHUNK_POINTS)  # elements per call
+        self.chunks = tuple(elements_per_call(c, self.nq) for c in CHUNK_POINTS)
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
         # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
         self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
@@ -252,7 +273,7 @@ class Term:
                          n=self._chunked(np.moveaxis(n, 0, -1)) if self.has_normal else None)
         self.cells = measure.cells  # the cell of measure.mesh that owns each element
         self.alpha0 = np.ones(self.nel)  # per-element data of constraint terms (see functional.ALPHA0)
-        self._kernels = {}
+        self._kernels, self._zeros = {}, {}
 
     def _record(self, fs):
         """Which derivative orders of which field the density uses (by tracing it once)."""
@@ -366,10 +387,12 @@ class Term:
     def per_point(self, i, chunk, rows=None):
         """The per-point data (W, x, n, h, alpha0) of kernel call i of `chunk` elements: its
         pieces on the device, or, for the given rows (padded), gathered on the host; zeros
-        (made on the device) for x, n where the term keeps none."""
+        (put there once per chunk size) for x, n where the term keeps none."""
         def one(a, shape):
             if a is None:
-                return zeros((chunk,) + shape)
+                if chunk not in self._zeros:
+                    self._zeros[chunk] = on_device(np.zeros((chunk,) + shape))
+                return self._zeros[chunk]
             return a.parts[i] if rows is None else a.rows(rows)
         d, point = self.data, (self.nq, self.dim)
         return [one(d["W"], ()), one(d["x"], point), one(d["n"], point), one(d["h"], ()), one(self._alpha0, ())]
@@ -499,9 +522,6 @@ class Term:
             for out, o in zip(outs, got):
                 out[s:s + len(o)] = o
         return outs
-
-
-zeros = jax.jit(jnp.zeros, static_argnums=0)  # made on the device (nothing crosses)
 
 
 def _dependent_outputs(jaxpr, dependent_inputs):

@@ -13,12 +13,19 @@ import numpy as np
 ALIGNMENT = 64  # bytes: what the CPU client needs to alias a host buffer
 
 
+def empty(shape, dtype=float):
+    """An uninitialized array in host memory that starts on an ALIGNMENT boundary."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    buf = np.empty(nbytes + ALIGNMENT, np.uint8)
+    start = -buf.ctypes.data % ALIGNMENT
+    return buf[start:start + nbytes].view(dtype).reshape(shape)
+
+
 def aligned(a, dtype=None):
     """A copy of a (array-like) in host memory that starts on an ALIGNMENT boundary."""
     a = np.asarray(a, dtype)
-    buf = np.empty(a.nbytes + ALIGNMENT, np.uint8)
-    start = -buf.ctypes.data % ALIGNMENT
-    out = buf[start:start + a.nbytes].view(a.dtype).reshape(a.shape)
+    out = empty(a.shape, a.dtype)
     out[...] = a
     return out
 

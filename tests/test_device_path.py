@@ -9,7 +9,7 @@ import pytest
 import scipy.sparse as sp
 
 from nitsche.cases import get
-from nitsche.assembly import Chunked
+from nitsche.assembly import CHUNK_POINTS, Chunked, elements_per_call
 from nitsche.device import aligned, host, on_device
 
 CASES = [("obstacle", 1, 2, {}), ("two-membrane", 1, 1, {}), ("elastic-contact", 1, 0, {}),
@@ -129,36 +129,47 @@ def test_a_call_passes_the_stored_pieces():
             assert isinstance(a, (Chunked, jax.Array))
 
 
-def test_chunked_data_keep_their_rows():
-    """Chunked: the pieces of Term.blocks (a large chunk, small ones, the last padded by
+@pytest.mark.parametrize("nel, blocks", [(30, [(0, 16), (16, 8), (24, 8)]),
+                                         (23, [(0, 10), (10, 4), (14, 4), (18, 4), (22, 4)])])
+def test_chunked_data_keep_their_rows(nel, blocks):
+    """Chunked: the pieces of the calls (a large chunk, small ones, the last padded by
     repeating the last row) give back every row, the rows of a subset across pieces, and
-    whether any entry is non-zero."""
-    a = np.random.default_rng(2).standard_normal((23, 3, 2))
-    blocks = [(0, 10), (10, 4), (14, 4), (18, 4), (22, 4)]
+    whether any entry is non-zero; pieces that start on multiples of 8 rows alias one host
+    copy on the CPU (read there without a copy), others are read back piece by piece."""
+    a = np.random.default_rng(2).standard_normal((nel, 3, 2))
     c = Chunked(a, blocks)
-    assert [p.shape[0] for p in c.parts] == [10, 4, 4, 4, 4]
+    assert [p.shape[0] for p in c.parts] == [n for _, n in blocks]
     np.testing.assert_array_equal(np.asarray(c), a)
-    np.testing.assert_array_equal(host(c.parts[-1]), np.repeat(a[-1:], 4, axis=0))
-    rows = np.array([22, 0, 9, 10, 17, 18, 3, 22])
+    start, n = blocks[-1]
+    np.testing.assert_array_equal(host(c.parts[-1]), np.concatenate([a[start:], a[-1:].repeat(start + n - nel, 0)]))
+    rows = np.array([len(a) - 1, 0, 9, 10, 17, 18, 3, len(a) - 1])
     np.testing.assert_array_equal(c.rows(rows), a[rows])
-    assert c.any() and not Chunked(np.zeros((5, 2)), [(0, 4), (4, 4)]).any()
+    assert c.any() and not Chunked(np.zeros((5, 2)), [(0, 8)]).any()
     empty = Chunked(np.zeros((0, 2)), [(0, 4)])
     assert np.asarray(empty).shape == (0, 2) and host(empty.parts[0]).shape == (4, 2)
+    if jax.devices()[0].platform == "cpu":
+        assert (c.host is not None) == all(s % 8 == 0 for s, _ in blocks)
+
+
+def test_calls_take_multiples_of_8_elements():
+    assert [elements_per_call(p, 6) for p in CHUNK_POINTS] == [168, 5456]
+    assert elements_per_call(1024, 200) == 5 and elements_per_call(1024, 2000) == 1
 
 
 def test_per_element_data_are_held_once():
-    """A term keeps its per-element floating-point data only on the device (no NumPy copy:
-    W, x, h, alpha0 read on the host are copies made on demand), and on_device's aligned
-    copy is aliased by device_put on the CPU (the data are held once there too)."""
+    """A term keeps its per-element floating-point data only on the device (no NumPy copy
+    of its own; on the CPU W, x, h read on the host are read-only views of the device
+    buffers), and on_device's aligned copy is aliased by device_put on the CPU."""
     case = get("obstacle")
     problem = case.problem(2, 1, case.parameters({}))
     t = problem.constraint_terms[0]
     assert not any(isinstance(v, np.ndarray) and v.dtype == float and v.size >= t.nel
                    for v in list(vars(t).values()) + list(t.data.values()))
     assert t.W.shape == (t.nel, t.nq) and t.x.shape == (t.nel, t.nq, 2) and t.h.shape == t.alpha0.shape == (t.nel,)
-    assert t.W is not t.W  # made on demand
     if jax.devices()[0].platform != "cpu":
         return
+    for name, view in (("W", t.W), ("x", t.x), ("h", t.h)):  # the device buffers themselves
+        assert view.ctypes.data == t.data[name].parts[0].unsafe_buffer_pointer() and not view.flags.writeable
     for p in t.data["W"].parts + t._alpha0.parts:
         assert p.unsafe_buffer_pointer() % 64 == 0
     a = np.arange(1000.0).reshape(10, 100)[:, ::2]  # not contiguous
