@@ -1,25 +1,29 @@
-"""The per-step assembly on the device path (nitsche.device) against an earlier checkout of
-the code, side by side in one run.
+"""The per-step assembly with the per-element data on the device (assembly.Chunked) against
+an earlier checkout of the code (and other designs), side by side in one run.
 
 For each case the problem is set up in a fresh process per code version (this checkout:
 "now"; the one given by --before: "before"), one after the other (one heavy process at a
 time), and at x = the initial guess + 1e-3 noise it times:
-  - the first Hessian assembly (loads or compiles the kernels and, now, the gathers and
-    scatters of this mesh) and then `--repeat` Hessian assemblies (Assembler.evaluate: J,
+  - the first Hessian assembly (loads or compiles the kernels; a fully device-resident
+    design also compiles its gathers and scatters for this mesh's sizes) and then `--repeat` Hessian assemblies (Assembler.evaluate: J,
     gradient, CSR data) and gradient assemblies (J and gradient), wall and CPU time
     (user + sys of the process, all threads), medians;
   - memory: the resident set after set-up and its peak during the steps (VmHWM, reset
     after set-up), in MB.
-J, the gradient and the Hessian data of the two versions are compared (max relative
-difference).  Writes benchmarks/results/device_path.json.  Usage:
+J, the gradient and the Hessian data of the versions are compared with "before" (max
+relative difference).  --runs times whole `nitsche run` processes (the nested chain and
+its outputs: CPU seconds, wall, peak RSS), version after version.  --also adds further
+versions (e.g. a rejected design).  Writes benchmarks/results/device_path.json.  Usage:
 
     git archive <commit> nitsche | tar -x -C /tmp/before     # the earlier code
-    python benchmarks/device_path.py --before /tmp/before [--repeat 5] [--cases obstacle:6 ...]
+    python benchmarks/device_path.py --before /tmp/before [--also NAME=DIR ...] [--repeat 5]
+        [--cases obstacle:6 ...] [--runs obstacle:6 ...]
 
 --platform cpu|cuda sets JAX_PLATFORMS for the measured processes; on a machine with an
 NVIDIA GPU install JAX's CUDA wheels first (pip install -U "jax[cuda12]") and run with
---platform cuda: the per-element data then live in GPU memory and only x, the gradient and
-the CSR data cross (the sparse solvers stay on the host).
+--platform cuda: the per-element data then live in GPU memory; per kernel call the element
+dofs x[dofs] go there and the outputs come back to the host's bincount, scatter and sparse
+solvers.
 """
 import argparse
 import json
@@ -99,6 +103,25 @@ def measure(spec, code, repeat, platform, dump):
     return json.loads(rows[0])
 
 
+def whole_run(spec, code, platform, out):
+    """`nitsche run CASE --level L` (the nested chain with its outputs) in a fresh process:
+    its CPU seconds (user + sys) and peak resident set (MB), and J_h and the iterations."""
+    name, level, sets = CASES[spec]
+    command = [sys.executable, "-c", "import sys; from nitsche.cli import main; sys.exit(main())", "run", name,
+               "--level", str(level), "--out", out] + [a for k, v in sets.items() for a in ("--set", f"{k}={v}")]
+    env = dict(os.environ, PYTHONPATH=code, JAX_PLATFORMS=platform)
+    wall = time.perf_counter()
+    proc = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - wall
+    if status:
+        raise RuntimeError(f"{' '.join(command)} failed (status {status})")
+    with open(os.path.join(out, "result.json")) as fh:
+        result = json.load(fh)
+    return dict(cpu=usage.ru_utime + usage.ru_stime, wall=wall, peak_mb=usage.ru_maxrss / 1024,
+                energy=result.get("energy"), iterations=result.get("nested_iterations", result.get("iterations")))
+
+
 def relative(u, v):
     import numpy as np
     u, v = np.asarray(u, float), np.asarray(v, float)
@@ -113,6 +136,8 @@ def main():
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--platform", default="cpu", help="JAX_PLATFORMS of the measured processes (cpu, cuda)")
+    ap.add_argument("--runs", nargs="*", default=[], choices=list(CASES),
+                    help="also time whole `nitsche run` processes of these cases, versions alternating")
     ap.add_argument("--out", default="device_path.json")
     ap.add_argument("--child")
     ap.add_argument("--dump")
@@ -140,9 +165,19 @@ def main():
                         row[f"{v}_ratio_{k}"] = got[v][k] / got["before"][k]
             rows.append(row)
             print(json.dumps(row), flush=True)
+        for spec in args.runs:
+            load = os.getloadavg()[0]
+            got = {v: whole_run(spec, code, args.platform, os.path.join(tmp, f"run-{v}")) for v, code in versions}
+            row = dict(case=f"run {spec}", load=load, **{f"{v}_run_{k}": val for v, r in got.items() for k, val in r.items()})
+            rows.append(row)
+            print(json.dumps(row), flush=True)
     print(f"\n{'case':22s} {'version':10s} {'unknowns':>9s} {'hess wall':>9s} {'hess cpu':>9s} {'grad wall':>9s} "
           f"{'grad cpu':>9s} {'first':>7s} {'rss MB':>8s} {'peak MB':>8s}")
     for r in rows:
+        if r["case"].startswith("run "):
+            print(f"{r['case']:22s} " + "; ".join(f"{v}: {r[f'{v}_run_cpu']:.2f} s CPU, {r[f'{v}_run_wall']:.2f} s wall, "
+                                                  f"{r[f'{v}_run_peak_mb']:.0f} MB" for v, _ in versions))
+            continue
         for v, _ in versions:
             print(f"{r['case']:22s} {v:10s} {r[f'{v}_unknowns']:9d} {r[f'{v}_hessian_wall']:9.3f} "
                   f"{r[f'{v}_hessian_cpu']:9.3f} {r[f'{v}_gradient_wall']:9.3f} {r[f'{v}_gradient_cpu']:9.3f} "
