@@ -5,9 +5,10 @@ For each case the problem is set up in a fresh process per code version (this ch
 "now"; the one given by --before: "before"), one after the other (one heavy process at a
 time), and at x = the initial guess + 1e-3 noise it times:
   - the first Hessian assembly (loads or compiles the kernels; a fully device-resident
-    design also compiles its gathers and scatters for this mesh's sizes) and then `--repeat` Hessian assemblies (Assembler.evaluate: J,
-    gradient, CSR data) and gradient assemblies (J and gradient), wall and CPU time
-    (user + sys of the process, all threads), medians;
+    design also compiles its gathers and scatters for this mesh's sizes) and then
+    `--repeat` Hessian assemblies (Assembler.evaluate: J, gradient, CSR data) and gradient
+    assemblies (J and gradient), wall and CPU time (user + sys of the process, all
+    threads), medians;
   - memory: the resident set after set-up and its peak during the steps (VmHWM, reset
     after set-up), in MB.
 J, the gradient and the Hessian data of the versions are compared with "before" (max
@@ -76,6 +77,7 @@ def child(spec, repeat, dump):
     w, c = time.perf_counter(), cpu()
     E, g, data = a.evaluate(x)
     first = (time.perf_counter() - w, cpu() - c)
+    a.evaluate(x, hessian=False)  # loads the gradient kernels (not timed)
     steps = {"hessian": [], "gradient": []}
     for _ in range(repeat):
         for kind, hessian in (("hessian", True), ("gradient", False)):
@@ -168,15 +170,16 @@ def main():
         for spec in args.runs:
             load = os.getloadavg()[0]
             got = {v: whole_run(spec, code, args.platform, os.path.join(tmp, f"run-{v}")) for v, code in versions}
-            row = dict(case=f"run {spec}", load=load, **{f"{v}_run_{k}": val for v, r in got.items() for k, val in r.items()})
+            row = dict(case=f"run {spec}", load=load,
+                       **{f"{v}_run_{k}": val for v, r in got.items() for k, val in r.items()})
             rows.append(row)
             print(json.dumps(row), flush=True)
     print(f"\n{'case':22s} {'version':10s} {'unknowns':>9s} {'hess wall':>9s} {'hess cpu':>9s} {'grad wall':>9s} "
           f"{'grad cpu':>9s} {'first':>7s} {'rss MB':>8s} {'peak MB':>8s}")
     for r in rows:
         if r["case"].startswith("run "):
-            print(f"{r['case']:22s} " + "; ".join(f"{v}: {r[f'{v}_run_cpu']:.2f} s CPU, {r[f'{v}_run_wall']:.2f} s wall, "
-                                                  f"{r[f'{v}_run_peak_mb']:.0f} MB" for v, _ in versions))
+            print(f"{r['case']:22s} " + "; ".join(f"{v}: {r[f'{v}_run_cpu']:.2f} s CPU, {r[f'{v}_run_wall']:.2f} s "
+                                                  f"wall, {r[f'{v}_run_peak_mb']:.0f} MB" for v, _ in versions))
             continue
         for v, _ in versions:
             print(f"{r['case']:22s} {v:10s} {r[f'{v}_unknowns']:9d} {r[f'{v}_hessian_wall']:9.3f} "
