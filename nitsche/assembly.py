@@ -150,9 +150,10 @@ class Chunked:
         padded[len(a):] = a[-1] if len(a) else 0.0
         self.parts = [jax.device_put(padded[s:s + n]) for s, n in blocks]
         shared = all(p.unsafe_buffer_pointer() == padded[s:].ctypes.data for p, s in zip(self.parts, self.starts))
-        self.host = padded[:a.shape[0]] if shared else None
+        self.padded = padded if shared else None
         if shared:
-            self.host.flags.writeable = False
+            padded.flags.writeable = False
+        self.host = padded[:a.shape[0]] if shared else None
 
     def __array__(self, dtype=None, copy=None):
         """All rows on the host."""
@@ -164,9 +165,9 @@ class Chunked:
         return bool(np.asarray(self).any())
 
     def rows(self, rows):
-        """The given rows on the host."""
-        if self.host is not None:
-            return self.host[rows]
+        """The given rows on the host (rows of the padding too)."""
+        if self.padded is not None:
+            return self.padded[rows]
         piece = np.searchsorted(self.starts, rows, side="right") - 1
         out = np.empty((len(rows),) + self.shape[1:], self.dtype)
         for k in np.unique(piece):
@@ -336,14 +337,15 @@ class Term:
         return np.asarray(a) if a is not None else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
                                                                   (self.nel, self.nq, self.dim))
 
-    W = property(lambda self: self._view("W"), doc="W[e, q]: quadrature weight x Jacobian (a host copy)")
-    x = property(lambda self: self._view("x"), doc="the quadrature points x[e, q, :] (a host copy)")
-    n = property(lambda self: self._view("n"), doc="the outward normals n[e, q, :] (a host copy)")
+    # read on the host: on the CPU read-only views of the device data, elsewhere copies
+    W = property(lambda self: self._view("W"), doc="W[e, q]: quadrature weight x Jacobian")
+    x = property(lambda self: self._view("x"), doc="the quadrature points x[e, q, :]")
+    n = property(lambda self: self._view("n"), doc="the outward normals n[e, q, :]")
     h = property(lambda self: self._view("h"), doc="the mesh size h[e] of the cell that owns each element")
 
     @property
     def alpha0(self):
-        """alpha0 per element (see functional.ALPHA0), a host copy."""
+        """alpha0 per element (see functional.ALPHA0), read on the host."""
         return np.asarray(self._alpha0)
 
     @alpha0.setter

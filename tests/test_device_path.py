@@ -147,6 +147,7 @@ def test_chunked_data_keep_their_rows(nel, blocks):
     assert c.any() and not Chunked(np.zeros((5, 2)), [(0, 8)]).any()
     empty = Chunked(np.zeros((0, 2)), [(0, 4)])
     assert np.asarray(empty).shape == (0, 2) and host(empty.parts[0]).shape == (4, 2)
+    assert empty.rows(np.zeros(4, int)).shape == (4, 2)  # the padding of a term without elements
     if jax.devices()[0].platform == "cpu":
         assert (c.host is not None) == all(s % 8 == 0 for s, _ in blocks)
 
