@@ -19,6 +19,12 @@ points and jitted on fixed-size chunks of elements, so one compiled kernel
 serves every Newton step and every refinement level.  The sparsity pattern and
 the scatter of element matrices into CSR storage (nitsche.pattern) are computed once
 per mesh.
+
+The per-element data (tabulations, inverse Jacobians, W, x, n, h, alpha0) are put on the
+device once, in the pieces the kernel calls take (Chunked), and kept only there; the
+gather x[dofs], the gradient's bincount and the scatter into the CSR data stay on the host
+with x and the sparse solvers: on XLA they would be programs of the mesh's sizes, compiled
+anew on every level (docs/performance.md, "GPU-ready per-step path").
 """
 import copy
 import hashlib
@@ -32,6 +38,7 @@ import scipy.sparse as sp
 
 from jax.extend.core import Literal
 
+from .device import empty, host, on_device
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
@@ -108,6 +115,13 @@ def global_names(code):
     return tuple(sorted(names))
 
 
+def elements_per_call(points, nq):
+    """Elements of nq points in a call of about `points` points: a multiple of 8 from 8 on
+    (so that the calls' pieces of per-element float data start 64-byte aligned: Chunked)."""
+    n = max(1, points // nq)
+    return n - n % 8 if n >= 8 else n
+
+
 def _pad(a, n):
     """Pad axis 0 to length n by repeating the last entry, or zeros for a term without
     elements on this rank (results for the padding are discarded); only the last (small)
@@ -115,8 +129,51 @@ def _pad(a, n):
     if a.shape[0] == n:
         return a
     if a.shape[0] == 0:
-        return np.zeros((n,) + a.shape[1:])
+        return np.zeros((n,) + a.shape[1:], a.dtype)
     return np.concatenate([a, np.repeat(a[-1:], n - a.shape[0], axis=0)])
+
+
+class Chunked:
+    """Per-element data a[e, ...] held on the device in the pieces that the kernel calls over
+    all elements take (Term.blocks), the last padded (_pad), so that a call passes its piece
+    as it is, with nothing to gather, pad or copy.  The pieces are put there once from one
+    aligned host copy (device.empty; the calls' first elements are multiples of 8, so
+    every piece starts aligned): on the CPU they alias it, and the host reads that copy
+    (`host`, read-only); elsewhere it is dropped and the host reads the pieces back."""
+
+    def __init__(self, a, blocks):
+        self.shape, self.dtype = a.shape, a.dtype
+        self.starts = np.array([s for s, _ in blocks], dtype=np.int64)
+        end = blocks[-1][0] + blocks[-1][1]
+        padded = empty((end,) + a.shape[1:])
+        padded[:len(a)] = a
+        padded[len(a):] = a[-1] if len(a) else 0.0
+        self.parts = [jax.device_put(padded[s:s + n]) for s, n in blocks]
+        shared = all(p.unsafe_buffer_pointer() == padded[s:].ctypes.data for p, s in zip(self.parts, self.starts))
+        self.padded = padded if shared else None
+        if shared:
+            padded.flags.writeable = False
+        self.host = padded[:a.shape[0]] if shared else None
+
+    def __array__(self, dtype=None, copy=None):
+        """All rows on the host."""
+        a = self.host if self.host is not None else np.concatenate([host(p) for p in self.parts])[:self.shape[0]]
+        return a if dtype is None else a.astype(dtype)
+
+    def any(self):
+        """Whether any entry is non-zero (the padding repeats entries)."""
+        return bool(np.asarray(self).any())
+
+    def rows(self, rows):
+        """The given rows on the host (rows of the padding too)."""
+        if self.padded is not None:
+            return self.padded[rows]
+        piece = np.searchsorted(self.starts, rows, side="right") - 1
+        out = np.empty((len(rows),) + self.shape[1:], self.dtype)
+        for k in np.unique(piece):
+            at = piece == k
+            out[at] = host(self.parts[k])[rows[at] - self.starts[k]]
+        return out
 
 
 def check_arguments(names, fields, label, parameters=()):
@@ -185,7 +242,7 @@ class Term:
         n = measure.normals
         self.has_normal = n is not None
         self.fields = [by_name[name] for name, _, _ in self.layout]
-        self.chunks = tuple(max(1, c // self.nq) for c in CHUNK_POINTS)  # elements per call
+        self.chunks = tuple(elements_per_call(c, self.nq) for c in CHUNK_POINTS)
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
         # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
         self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
@@ -198,11 +255,11 @@ class Term:
             if kept.size == 0:
                 kept = np.arange(1)
             if mapped:
-                self.T.append(T.R)
-                self.J.append(T.invJ)
+                self.T.append(self._stored(T.R))
+                self.J.append(self._stored(T.invJ))
                 self.maps.append(T.spec)
             else:
-                self.T.append(T if kept.size == T.shape[2] else np.ascontiguousarray(T[:, :, kept]))
+                self.T.append(self._stored(T if kept.size == T.shape[2] else T[:, :, kept]))
                 self.J.append(None)
                 self.maps.append(None)
             self.kept.append(tuple(kept.tolist()))
@@ -211,16 +268,13 @@ class Term:
         self.field_dofs = [d if o == 0 else d + o for d, o in zip(self.dofs, self.offsets)]
         self.global_dofs = self.field_dofs[0] if len(self.field_dofs) == 1 \
             else np.concatenate(self.field_dofs, axis=1)  # (one field at offset 0: no copies)
-        self.W = W
-        self.x = np.ascontiguousarray(np.moveaxis(measure.points, 0, -1)) \
-            if "x" in names or keep_points else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
-                                                                (self.nel, self.nq, self.dim))
-        self.n = np.ascontiguousarray(np.moveaxis(n, 0, -1)) if self.has_normal \
-            else np.broadcast_to(np.zeros((1, self.nq, self.dim)), (self.nel, self.nq, self.dim))
-        self.h = np.asarray(measure.h, dtype=float)
+        # per-point data on the device (Chunked); x and n None where the term keeps none
+        self.data = dict(W=self._chunked(W), h=self._chunked(np.asarray(measure.h, dtype=float)),
+                         x=self._chunked(np.moveaxis(measure.points, 0, -1)) if "x" in names or keep_points else None,
+                         n=self._chunked(np.moveaxis(n, 0, -1)) if self.has_normal else None)
         self.cells = measure.cells  # the cell of measure.mesh that owns each element
         self.alpha0 = np.ones(self.nel)  # per-element data of constraint terms (see functional.ALPHA0)
-        self._kernels = {}
+        self._kernels, self._zeros = {}, {}
 
     def _record(self, fs):
         """Which derivative orders of which field the density uses (by tracing it once)."""
@@ -264,10 +318,39 @@ class Term:
                 continue
             T, dofs = self.measure.tabulation(f, [o for o, _, _, _ in parts])
             kept = list(self.kept[i])
-            self.T[i] = T if len(kept) == T.shape[2] else np.ascontiguousarray(T[:, :, kept])
+            self.T[i] = self._stored(T if len(kept) == T.shape[2] else T[:, :, kept])
             self.dofs[i] = dofs
             self.field_dofs[i] = dofs + self.offsets[i]
         self.global_dofs[...] = np.concatenate(self.field_dofs, axis=1)
+
+    def _chunked(self, a):
+        """Per-element data on the device in the pieces of the kernel calls (Chunked)."""
+        return Chunked(np.asarray(a, dtype=float), self.blocks(self.nel))
+
+    def _stored(self, a):
+        """A tabulation on the device: one row shared by all elements as it is, else Chunked."""
+        return on_device(a, float) if a.shape[0] == 1 else self._chunked(a)
+
+    def _view(self, name):
+        """Per-point data `name` of all elements on the host (zeros where the term keeps none)."""
+        a = self.data[name]
+        return np.asarray(a) if a is not None else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
+                                                                  (self.nel, self.nq, self.dim))
+
+    # read on the host: on the CPU read-only views of the device data, elsewhere copies
+    W = property(lambda self: self._view("W"), doc="W[e, q]: quadrature weight x Jacobian")
+    x = property(lambda self: self._view("x"), doc="the quadrature points x[e, q, :]")
+    n = property(lambda self: self._view("n"), doc="the outward normals n[e, q, :]")
+    h = property(lambda self: self._view("h"), doc="the mesh size h[e] of the cell that owns each element")
+
+    @property
+    def alpha0(self):
+        """alpha0 per element (see functional.ALPHA0), read on the host."""
+        return np.asarray(self._alpha0)
+
+    @alpha0.setter
+    def alpha0(self, values):
+        self._alpha0 = self._chunked(np.broadcast_to(np.asarray(values, dtype=float), (self.nel,)))
 
     def with_pointwise(self, pointwise):
         """The same term (same tabulations) with another density (not a residual) of the
@@ -302,6 +385,19 @@ class Term:
     def parameter_data(self, n):
         """The values of the parameters the density reads, one row per element of a chunk."""
         return np.broadcast_to(self.parameters.values[self.parameter_index], (n, self.parameter_index.size))
+
+    def per_point(self, i, chunk, rows=None):
+        """The per-point data (W, x, n, h, alpha0) of kernel call i of `chunk` elements: its
+        pieces on the device, or, for the given rows (padded), gathered on the host; zeros
+        (put there once per chunk size) for x, n where the term keeps none."""
+        def one(a, shape):
+            if a is None:
+                if chunk not in self._zeros:
+                    self._zeros[chunk] = on_device(np.zeros((chunk,) + shape))
+                return self._zeros[chunk]
+            return a.parts[i] if rows is None else a.rows(rows)
+        d, point = self.data, (self.nq, self.dim)
+        return [one(d["W"], ()), one(d["x"], point), one(d["n"], point), one(d["h"], ()), one(self._alpha0, ())]
 
     def _point_fn(self, by_field=False):
         """The density w(z, x, n, h, a, t) of the kept jet components z of all fields (one
@@ -381,8 +477,9 @@ class Term:
             args = [jax.ShapeDtypeStruct((1 if a.shape[0] == 1 else chunk,) + a.shape[1:], jnp.float64)
                     for a in self.tables]
             args += [jax.ShapeDtypeStruct((chunk, k), jnp.float64) for _, k in self.sizes]
-            args += [jax.ShapeDtypeStruct((chunk,) + a.shape[1:], jnp.float64)
-                     for a in (self.W, self.x, self.n, self.h, self.alpha0, self.parameter_data(1))]
+            point = (self.nq, self.dim)
+            args += [jax.ShapeDtypeStruct((chunk,) + shape, jnp.float64)  # W, x, n, h, alpha0, parameters
+                     for shape in ((self.nq,), point, point, (), (), (self.parameter_index.size,))]
             t = time.perf_counter()
             _COMPILED[key] = jax.jit(fn).lower(*args).compile()
             compile_seconds[0] += time.perf_counter() - t
@@ -401,16 +498,20 @@ class Term:
 
     def calls(self, kind, x, elements=None):
         """Apply a kernel to all elements (or to the given ones) for the global dof vector x,
-        call by call: yields (the first element of the call, its outputs without padding)."""
-        us = [x[d] for d in self.field_dofs]
+        call by call: yields (the first element of the call, its outputs without padding).
+        Over all elements a call passes the pieces of the per-element data stored on the
+        device (Chunked) as they are; what crosses per call is the element dofs x[dofs] (a
+        gather on the host, where x lives) and the parameters, and back the outputs (on the
+        CPU without a copy); given elements, their rows are gathered on the host."""
+        dofs = self.field_dofs if elements is None else [d[elements] for d in self.field_dofs]
+        us = [x[d] for d in dofs]  # (host: x and the sparse solvers' data stay there)
         nel = self.nel if elements is None else len(elements)
-        for s, chunk in self.blocks(nel):
-            kern = self.kernel(kind, chunk)
-            sl = slice(s, s + chunk) if elements is None else elements[s: s + chunk]
-            Ts = [a if a.shape[0] == 1 else _pad(a[sl], chunk) for a in self.tables]
-            rest = [_pad(a[sl], chunk) for a in (*us, self.W, self.x, self.n, self.h, self.alpha0)]
-            out = kern(*Ts, *rest, self.parameter_data(chunk))
-            yield s, [np.asarray(o)[:max(0, min(chunk, nel - s))] for o in out]
+        for i, (s, chunk) in enumerate(self.blocks(nel)):
+            rows = None if elements is None else _pad(np.asarray(elements[s:s + chunk]), chunk)
+            Ts = [a if a.shape[0] == 1 else a.parts[i] if rows is None else a.rows(rows) for a in self.tables]
+            u = [_pad(a[s:s + chunk], chunk) for a in us]
+            out = self.kernel(kind, chunk)(*Ts, *u, *self.per_point(i, chunk, rows), self.parameter_data(chunk))
+            yield s, [host(o)[:max(0, min(chunk, nel - s))] for o in out]
 
     def run(self, kind, x, elements=None):
         """The kernel's outputs on all elements (or on the given ones): each call's outputs
