@@ -38,3 +38,42 @@ def test_fixed_dofs_as_scikit_fem(mesh, element):
         assert np.array_equal(f.held["bottom"], np.asarray(d.all("u^3"), np.int64))
         x = np.asarray(b.get_dofs(plain.facets_satisfying(bottom, True)).all("u^1"))
         assert np.array_equal(f.fixed_dofs, np.unique(np.concatenate([d.all("u^3"), x])))
+
+
+@pytest.mark.parametrize("size, high", [(0, 1), (1, 5), (1000, 7), (5000, 2 ** 40), (3000, 2 ** 62)])
+def test_unique_first_inverse_is_numpy_unique(size, high):
+    """unique_first_inverse equals np.unique(return_index, return_inverse), values and dtypes,
+    with many repeated keys (first occurrences matter) and keys too wide to pack (argsort)."""
+    from nitsche.pattern import unique_first_inverse
+    keys = np.random.default_rng(size).integers(0, high, size, dtype=np.int64)
+    expect = np.unique(keys, return_index=True, return_inverse=True)
+    got = unique_first_inverse(keys)
+    for e, g in zip(expect, got):
+        assert e.dtype == g.dtype and np.array_equal(e, g.ravel())
+
+
+def test_run_numbers_and_csr_pattern():
+    """run_numbers is cumsum - 1 in the dtype asked; csr_pattern's positions locate each key."""
+    from nitsche.pattern import csr_pattern, run_numbers
+    starts = np.random.default_rng(1).random(10000) < 0.3
+    starts[0] = True
+    for dtype in (np.int32, np.int64):
+        r = run_numbers(starts, dtype)
+        assert r.dtype == dtype and np.array_equal(r, np.cumsum(starts) - 1)
+    n = 50
+    keys = np.random.default_rng(2).integers(0, n * n, 4000, dtype=np.int64)
+    indptr, indices, position = csr_pattern(keys, n)
+    rows = np.repeat(np.arange(n), np.diff(indptr))
+    assert np.array_equal(rows * n + indices, np.unique(keys))
+    assert np.array_equal((rows * n + indices)[position], keys)
+
+
+@pytest.mark.parametrize("mesh", sorted(MESHES))
+def test_build_facets_as_scikit_fem(mesh):
+    """build_facets sets the facets and t2f scikit-fem builds (values and dtypes)."""
+    from nitsche.measures import build_facets
+    plain, ours = MESHES[mesh](), MESHES[mesh]()
+    build_facets(ours)
+    assert hasattr(ours, "_facets") or mesh == "hex"  # hexahedra: scikit-fem's own facets
+    for a, b in ((plain.facets, ours.facets), (plain.t2f, ours.t2f)):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
