@@ -77,3 +77,29 @@ def test_build_facets_as_scikit_fem(mesh):
     assert hasattr(ours, "_facets") or mesh == "hex"  # hexahedra: scikit-fem's own facets
     for a, b in ((plain.facets, ours.facets), (plain.t2f, ours.t2f)):
         assert a.dtype == b.dtype and np.array_equal(a, b)
+
+
+def previous_free_block(problem):
+    """The free-free block's structure as Problem._free_block computed it before s22."""
+    a = problem.assembler
+    row = np.repeat(np.arange(problem.ndofs), np.diff(a.indptr))
+    isfree = np.zeros(problem.ndofs, bool)
+    isfree[problem.free] = True
+    keep = isfree[row] & isfree[a.indices]
+    number = -np.ones(problem.ndofs, np.int64)
+    number[problem.free] = np.arange(problem.free.size)
+    return (np.flatnonzero(keep), number[a.indices[keep]].astype(np.int32),
+            np.concatenate([[0], np.cumsum(np.bincount(number[row[keep]], minlength=problem.free.size))]))
+
+
+@pytest.mark.parametrize("name, sets", [("obstacle", {}), ("membrane-solid", {"cells": "tet"}),
+                                        ("two-membrane", {})])
+def test_free_block_as_before(name, sets):
+    """Problem._free_block's selection, column numbers and row starts (values and dtypes)
+    equal the previous formula's."""
+    from nitsche.cases import get
+    case = get(name)
+    problem = case.problem(1, case.degrees[0], case.parameters(sets))
+    assert problem.fixed.size > 0
+    for e, g in zip(previous_free_block(problem), (problem._sel, problem._ff_indices, problem._ff_indptr)):
+        assert e.dtype == g.dtype and np.array_equal(e, g)
