@@ -31,10 +31,25 @@ class DofBasis(CellBasis):
 
     def __init__(self, mesh, elem, elements=None):
         X, W = get_quadrature(mesh.refdom, 0)
+        mapped = hasattr(elem, "doflocs")  # else scikit-fem's warning that it has none
         AbstractBasis.__init__(self, mesh, elem, quadrature=(X.mean(axis=1, keepdims=True),
-                                                             W.sum(keepdims=True)), refdom=mesh.refdom)
+                                                             W.sum(keepdims=True)),
+                               refdom=mesh.refdom, disable_doflocs=mapped)
+        if mapped:
+            self.doflocs = self._doflocs()
         self.tind = None if elements is None else mesh.normalize_elements(elements)
         self.nelems = mesh.nelements if elements is None else len(self.tind)
+
+    def _doflocs(self):
+        """The dofs' locations x = F_e(X_j) as scikit-fem sets them (dof D[j, e] at F_e of
+        the reference location X_j, later j and e winning), F evaluated once per distinct
+        X_j (a vector element repeats each point for every component)."""
+        X, point = np.unique(np.asarray(self.elem.doflocs), axis=0, return_inverse=True)
+        x = self.mapping.F(X.T)  # (dim, cells, distinct points)
+        doflocs = np.zeros((x.shape[0], self.N))
+        for j, k in enumerate(point.ravel()):
+            doflocs[:, self.dofs.element_dofs[j]] = x[:, :, k]
+        return doflocs
 
     @cached_property
     def basis(self):

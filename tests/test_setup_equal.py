@@ -1,14 +1,17 @@
 """The problem set-up's shortcuts give what the plain scikit-fem path gives, bit for bit."""
 import numpy as np
 import pytest
-from skfem import (Basis, ElementHex1, ElementTetP1, ElementTetP2, ElementTriP1, ElementTriP2,
-                   ElementVector, MeshHex, MeshTet, MeshTri)
+from skfem import (Basis, ElementHex1, ElementQuad1, ElementQuad2, ElementTetP1, ElementTetP2,
+                   ElementTriArgyris, ElementTriMorley, ElementTriP1, ElementTriP2, ElementVector,
+                   MeshHex, MeshQuad, MeshTet, MeshTri)
 
 import nitsche as ni
+from nitsche.bfs import ElementQuadBFSLocal
 
 MESHES = {"tet": lambda: MeshTet.init_tensor(*[np.linspace(0, 1, 5)] * 3),
           "hex": lambda: MeshHex.init_tensor(*[np.linspace(0, 1, 4)] * 3),
-          "tri": lambda: MeshTri.init_tensor(*[np.linspace(0, 1, 7)] * 2)}
+          "tri": lambda: MeshTri.init_tensor(*[np.linspace(0, 1, 7)] * 2),
+          "quad": lambda: MeshQuad.init_tensor(*[np.linspace(0, 1, 6)] * 2)}
 CASES = [("tet", lambda: ElementVector(ElementTetP1())), ("tet", ElementTetP1), ("tet", ElementTetP2),
          ("hex", lambda: ElementVector(ElementHex1())), ("tri", ElementTriP1), ("tri", ElementTriP2)]
 
@@ -103,3 +106,15 @@ def test_free_block_as_before(name, sets):
     assert problem.fixed.size > 0
     for e, g in zip(previous_free_block(problem), (problem._sel, problem._ff_indices, problem._ff_indptr)):
         assert e.dtype == g.dtype and np.array_equal(e, g)
+
+
+@pytest.mark.parametrize("mesh, element", CASES + [
+    ("tri", lambda: ElementVector(ElementTriP2())), ("tri", ElementTriMorley), ("tri", ElementTriArgyris),
+    ("quad", ElementQuad2), ("quad", lambda: ElementVector(ElementQuad1())), ("quad", ElementQuadBFSLocal)])
+def test_dof_locations_as_scikit_fem(mesh, element):
+    """DofBasis.doflocs equals scikit-fem's Basis.doflocs bit for bit (F once per distinct
+    reference point instead of once per dof)."""
+    from nitsche.fields import DofBasis
+    m = MESHES[mesh]()
+    ours, theirs = DofBasis(m, element()).doflocs, Basis(m, element()).doflocs
+    assert ours.shape == theirs.shape and np.array_equal(ours.view(np.int64), theirs.view(np.int64))
