@@ -26,7 +26,6 @@ from . import partition
 from .elements import has_zero_hessian
 from .jets import ORDERS
 from .locate import reference_coordinates
-from .pattern import unique_first_inverse
 
 
 _DIAMETERS = {}  # id(mesh) -> diameters, dropped with the mesh
@@ -62,7 +61,7 @@ def build_facets(mesh):
     key = columns[0]
     for row in columns[1:]:
         key = key * N + row
-    _, first, inverse = unique_first_inverse(key)  # np.unique's, by one sort of integers
+    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
     mesh._facets = np.ascontiguousarray(columns[:, first].astype(mesh.t.dtype))
     mesh._t2f = inverse.reshape(len(local), mesh.t.shape[1])
 

@@ -62,17 +62,6 @@ def run_numbers(starts, dtype=np.int64):
     return rank
 
 
-def unique_first_inverse(keys):
-    """np.unique(keys, return_index=True, return_inverse=True) of non-negative int64 keys
-    (the first occurrence of each distinct key, and the distinct key of each), by
-    sort_with_order and run_numbers."""
-    ordered, order = sort_with_order(keys)
-    new = changes(ordered)
-    inverse = np.empty(keys.size, np.intp)
-    inverse[order] = run_numbers(new, np.intp)
-    return ordered[new], order[new].astype(np.intp), inverse
-
-
 def csr_pattern(keys, n):
     """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
     row * n + column (repeated keys: one entry), and each key's position in it: one sort

@@ -43,18 +43,6 @@ def test_fixed_dofs_as_scikit_fem(mesh, element):
         assert np.array_equal(f.fixed_dofs, np.unique(np.concatenate([d.all("u^3"), x])))
 
 
-@pytest.mark.parametrize("size, high", [(0, 1), (1, 5), (1000, 7), (5000, 2 ** 40), (3000, 2 ** 62)])
-def test_unique_first_inverse_is_numpy_unique(size, high):
-    """unique_first_inverse equals np.unique(return_index, return_inverse), values and dtypes,
-    with many repeated keys (first occurrences matter) and keys too wide to pack (argsort)."""
-    from nitsche.pattern import unique_first_inverse
-    keys = np.random.default_rng(size).integers(0, high, size, dtype=np.int64)
-    expect = np.unique(keys, return_index=True, return_inverse=True)
-    got = unique_first_inverse(keys)
-    for e, g in zip(expect, got):
-        assert e.dtype == g.dtype and np.array_equal(e, g.ravel())
-
-
 def test_run_numbers_and_csr_pattern():
     """run_numbers is cumsum - 1 in the dtype asked; csr_pattern's positions locate each key."""
     from nitsche.pattern import csr_pattern, run_numbers
@@ -73,7 +61,8 @@ def test_run_numbers_and_csr_pattern():
 
 @pytest.mark.parametrize("mesh", sorted(MESHES))
 def test_build_facets_as_scikit_fem(mesh):
-    """build_facets sets the facets and t2f scikit-fem builds (values and dtypes)."""
+    """build_facets sets the facets and t2f scikit-fem builds (values and dtypes; the
+    predicate's facets in Field take them)."""
     from nitsche.measures import build_facets
     plain, ours = MESHES[mesh](), MESHES[mesh]()
     build_facets(ours)
