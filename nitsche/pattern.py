@@ -56,7 +56,7 @@ def changes(ordered):
 def run_numbers(starts, dtype=np.int64):
     """The run of each entry, 0, 1, ..., runs beginning where `starts` is True (starts[0]
     True): cumsum(starts) - 1 in `dtype` (numpy's cumsum of booleans without a dtype takes
-    a slow casting loop, about 15x slower)."""
+    a slow casting loop, up to 15x slower)."""
     rank = np.cumsum(starts, dtype=dtype)
     rank -= 1
     return rank
