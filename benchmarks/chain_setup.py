@@ -10,6 +10,7 @@ time is the measure that a shared machine disturbs least; medians are printed.
 
     python benchmarks/chain_setup.py --cases obstacle two-membrane --level 6 --repeat 3 \\
         --before /tmp/before   # a checkout of an earlier version, side by side
+    python benchmarks/chain_setup.py --cases membrane-solid --level 3 --set cells=tet
 """
 import argparse
 import json
@@ -25,9 +26,10 @@ import json, resource, sys, time
 import nitsche.assembly as assembly
 import nitsche.study as study
 from nitsche.cases import get
+from nitsche.cli import parse_assignments
 case_name, level = sys.argv[1], int(sys.argv[2])
 case = get(case_name)
-p = case.parameters()
+p = case.parameters(parse_assignments(sys.argv[3:]))
 setup, prolongation = [], [0.0]
 prolongate = study.prolongate
 
@@ -59,10 +61,11 @@ print(json.dumps(dict(cpu=cpu, wall=wall, setup=setup, prolongation=prolongation
 """
 
 
-def run(case, level, source):
-    """One chain in a child process that imports nitsche from `source`."""
+def run(case, level, source, sets=()):
+    """One chain in a child process that imports nitsche from `source` (case parameters
+    NAME=VALUE in `sets`)."""
     env = dict(os.environ, PYTHONPATH=source, OPENBLAS_NUM_THREADS="1")
-    out = subprocess.run([sys.executable, "-c", CHILD, case, str(level)], env=env, cwd="/",
+    out = subprocess.run([sys.executable, "-c", CHILD, case, str(level), *sets], env=env, cwd="/",
                          capture_output=True, text=True, check=True)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -72,6 +75,8 @@ def main():
     ap.add_argument("--cases", nargs="+", default=["obstacle", "two-membrane"])
     ap.add_argument("--level", type=int, default=6)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a case parameter for every case (repeatable), as `nitsche run --set`")
     ap.add_argument("--before", help="a checkout of an earlier version, run side by side")
     ap.add_argument("--name", default="chain_setup.json", help="the results file in benchmarks/results")
     args = ap.parse_args()
@@ -82,7 +87,7 @@ def main():
         runs = {v: [] for v, _ in versions}
         for rep in range(args.repeat):
             for v, source in versions:
-                r = run(case, args.level, source)
+                r = run(case, args.level, source, args.set)
                 runs[v].append(r)
                 print(f"  {case} L{args.level} rep {rep} {v}: CPU {r['cpu']:.2f} s (wall {r['wall']:.2f}), "
                       f"set-up {sum(r['setup']):.2f} (finest {r['setup'][-1]:.2f}), prolongation "
@@ -91,7 +96,7 @@ def main():
                       file=sys.stderr, flush=True)
         for v, _ in versions:
             med = lambda f: statistics.median(f(r) for r in runs[v])  # noqa: E731
-            rows.append(dict(case=case, version=v, level=args.level, unknowns=runs[v][0]["unknowns"],
+            rows.append(dict(case=case, version=v, level=args.level, set=args.set, unknowns=runs[v][0]["unknowns"],
                              energy=runs[v][0]["energy"], iterations=runs[v][0]["iterations"],
                              cpu=med(lambda r: r["cpu"]), wall=med(lambda r: r["wall"]),
                              setup=med(lambda r: sum(r["setup"])),

@@ -31,10 +31,25 @@ class DofBasis(CellBasis):
 
     def __init__(self, mesh, elem, elements=None):
         X, W = get_quadrature(mesh.refdom, 0)
+        mapped = hasattr(elem, "doflocs")  # else scikit-fem's warning that it has none
         AbstractBasis.__init__(self, mesh, elem, quadrature=(X.mean(axis=1, keepdims=True),
-                                                             W.sum(keepdims=True)), refdom=mesh.refdom)
+                                                             W.sum(keepdims=True)),
+                               refdom=mesh.refdom, disable_doflocs=mapped)
+        if mapped:
+            self.doflocs = self._doflocs()
         self.tind = None if elements is None else mesh.normalize_elements(elements)
         self.nelems = mesh.nelements if elements is None else len(self.tind)
+
+    def _doflocs(self):
+        """The dofs' locations x = F_e(X_j) as scikit-fem sets them (dof D[j, e] at F_e of
+        the reference location X_j, later j and e winning), F evaluated once per distinct
+        X_j (a vector element repeats each point for every component)."""
+        X, point = np.unique(np.asarray(self.elem.doflocs), axis=0, return_inverse=True)
+        x = self.mapping.F(X.T)  # (dim, cells, distinct points)
+        doflocs = np.zeros((x.shape[0], self.N))
+        for j, k in enumerate(point.ravel()):
+            doflocs[:, self.dofs.element_dofs[j]] = x[:, :, k]
+        return doflocs
 
     @cached_property
     def basis(self):
@@ -129,7 +144,7 @@ class Field:
         if isinstance(fixed, dict):
             held = {where: self._component_dofs(where, which) for where, which in fixed.items()}
         elif isinstance(fixed, str) or callable(fixed):
-            held = {fixed: np.asarray(self.dof_basis.get_dofs(self._boundary(fixed)).all(), dtype=np.int64)}
+            held = {fixed: np.asarray(self._facet_dofs(self._boundary(fixed)).all(), dtype=np.int64)}
         else:
             return self._dof_indices(fixed)
         # the dofs each named boundary holds (its reaction), "boundary" meaning all of them
@@ -147,9 +162,18 @@ class Field:
                                  f"use 'boundary' or one of {names}")
             return self.mesh.boundaries[where]
         if callable(where):
+            build_facets(self.mesh)  # the facets as scikit-fem numbers them, by one integer sort
             return self.mesh.facets_satisfying(where, boundaries_only=True)
         raise ValueError(f"field '{self.name}': a fixed boundary is 'boundary', a boundary name "
                          f"or a predicate of x, not {where!r}")
+
+    def _facet_dofs(self, facets):
+        """The dofs on the facets, as dof_basis.get_dofs(facets); an element with dofs on
+        vertices only takes those of the facets' vertices (scikit-fem's facet-to-edge map,
+        built there in 3D, is not needed)."""
+        if self.element.edge_dofs == 0 and self.element.facet_dofs == 0:
+            return self.dof_basis.get_dofs(nodes=np.unique(self.mesh.facets[:, facets].ravel()))
+        return self.dof_basis.get_dofs(facets)
 
     def _component_dofs(self, where, which):
         """The dofs of the components `which` of a vector field on a boundary."""
@@ -166,7 +190,7 @@ class Field:
                 raise ValueError(f"field '{self.name}': component {c!r} on {where!r}: use 'all', "
                                  f"an index 0..{dim - 1} or one of {list('xyz'[:dim])}")
             index.append(i)
-        dofs = self.dof_basis.get_dofs(self._boundary(where))
+        dofs = self._facet_dofs(self._boundary(where))
         return np.concatenate([np.asarray(dofs.all(f"u^{i + 1}"), dtype=np.int64) for i in index])
 
     def _dof_indices(self, fixed):

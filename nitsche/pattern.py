@@ -45,18 +45,33 @@ def sort_with_order(keys):
     return keys[order], order
 
 
+def changes(ordered):
+    """True where a sorted array's entry differs from the one before (and at the first)."""
+    new = np.empty(ordered.size, bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    return new
+
+
+def run_numbers(starts, dtype=np.int64):
+    """The run of each entry, 0, 1, ..., runs beginning where `starts` is True (starts[0]
+    True): cumsum(starts) - 1 in `dtype` (numpy's cumsum of booleans without a dtype takes
+    a slow casting loop, up to 15x slower)."""
+    rank = np.cumsum(starts, dtype=dtype)
+    rank -= 1
+    return rank
+
+
 def csr_pattern(keys, n):
     """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
     row * n + column (repeated keys: one entry), and each key's position in it: one sort
     of the keys.  Index arrays are int32 while they fit."""
     ordered, order = sort_with_order(keys)
-    new = np.empty(ordered.size, bool)
-    new[:1] = True
-    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    new = changes(ordered)
     rows, columns = np.divmod(ordered[new], n)
     index = index_type(rows.size, n)
     position = np.empty(keys.size, index)
-    position[order] = np.cumsum(new) - 1
+    position[order] = run_numbers(new, index)
     indptr = np.zeros(n + 1, index)
     np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
     return indptr, columns.astype(index), position
@@ -82,7 +97,7 @@ def dof_groups(maps, n):
     joined[:-1] &= held[:-1] & held[1:]
     starts = np.ones(n, bool)
     starts[1:] = ~joined[:-1]
-    return (np.cumsum(starts) - 1).astype(index_type(n))
+    return run_numbers(starts, index_type(n))
 
 
 def runs(D, group):

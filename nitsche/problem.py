@@ -307,17 +307,22 @@ class Problem:
         return self.assembler.hessian(x, terms=self.energy_terms)
 
     def _free_block(self):
+        """The free-free block's CSR structure in the assembler's pattern: the kept entries
+        (_sel), their free column numbers and the free rows' starts (rows of fixed dofs keep
+        nothing, and the free dofs are ascending, so a free row ends at the kept entries'
+        count up to its end)."""
         a = self.assembler
-        row = np.repeat(np.arange(self.ndofs), np.diff(a.indptr))
         isfree = np.zeros(self.ndofs, bool)
         isfree[self.free] = True
-        keep = isfree[row] & isfree[a.indices]
+        keep = isfree[a.indices]
+        keep &= np.repeat(isfree, np.diff(a.indptr))
         self._sel = np.flatnonzero(keep)
-        number = -np.ones(self.ndofs, np.int64)
-        number[self.free] = np.arange(self.free.size)
-        self._ff_indices = number[a.indices[keep]].astype(np.int32)
-        self._ff_indptr = np.concatenate([[0], np.cumsum(np.bincount(number[row[keep]],
-                                                                     minlength=self.free.size))])
+        number = np.full(self.ndofs, -1, np.int32)
+        number[self.free] = np.arange(self.free.size, dtype=np.int32)
+        self._ff_indices = number[a.indices[self._sel]]
+        count = np.zeros(keep.size + 1, np.int64)  # kept entries before each position
+        np.cumsum(keep, dtype=np.int64, out=count[1:])
+        self._ff_indptr = np.concatenate([[0], count[a.indptr[self.free + 1]]])
 
     def _free_matrix(self, data):
         """The free-free block of the CSR matrix with the assembler's pattern and `data`."""

@@ -136,7 +136,8 @@ def _numbering(blocks):
     new = np.ones_like(s, dtype=bool)
     new[:, 1:] = s[:, 1:] != s[:, :-1]
     new &= s >= 0
-    rank = np.cumsum(new, axis=1) - 1
+    rank = np.cumsum(new, axis=1, dtype=np.int64)  # (a dtype: the fast loop for booleans)
+    rank -= 1
     local = np.full((dofs.shape[0], int(rank[:, -1].max()) + 1), -1, dtype=np.int64)
     r, c = np.nonzero(new)
     local[r, rank[r, c]] = s[r, c]
