@@ -205,7 +205,7 @@ def surface(ax, tri, w, **style):
 def cell_pressure(problem, x):
     """The contact pressure's mean over each cell (the ranks' own cells collected)."""
     v = problem.constraint_values(x)["contact"]
-    on = problem.constraints[[c.name for c in problem.constraints].index("contact")].on
+    on = next(c.on for c in problem.constraints if c.name == "contact")
     return partition.collected(on.cells, (v["multiplier"] * v["W"]).sum(1) / v["W"].sum(1),
                                on.mesh.nelements)
 
