@@ -27,6 +27,7 @@ def _deformation_scale(mesh, d):
 
 def _scalar_panel(fig, ax, f, values):
     im = ax.tripcolor(_triangulation(f.mesh), values, shading="gouraud", cmap="viridis")
+    im.set_in_layout(False)  # inside the axes: no need to measure (each triangle a Path)
     fig.colorbar(im, ax=ax, shrink=0.8, label=f.name)
     ax.set_title(f.name)
     ax.set_aspect("equal")
@@ -41,6 +42,7 @@ def _vector_panel(fig, ax, f, d):
                                tri.triangles)
     ax.triplot(tri, lw=0.3, color="0.7")
     im = ax.tripcolor(moved, np.linalg.norm(d, axis=1), shading="gouraud", cmap="viridis")
+    im.set_in_layout(False)
     fig.colorbar(im, ax=ax, shrink=0.8, label=f"|{f.name}|")
     ax.set_title(f"{f.name}: deformed shape (x{scale:.3g}; grey: undeformed)")
     ax.set_aspect("equal")
