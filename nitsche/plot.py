@@ -18,6 +18,24 @@ def _triangulation(mesh):
     return mtri.Triangulation(mesh.p[0], mesh.p[1], t)
 
 
+def cell_colours(ax, triangulation, values, **style):
+    """Each triangle filled with the colour of its value (values per triangle; masked or
+    NaN ones left out): drawn as Gouraud triangles of constant value on their own
+    vertices, which the renderer fills in one call, where tripcolor's flat shading makes a
+    matplotlib Path of every triangle (seconds at 10^5 cells).  The collection is left out
+    of the tight layout (it lies inside the axes).  Returns the collection (for a colorbar)."""
+    t = triangulation.triangles
+    v = np.ma.filled(np.ma.masked_invalid(np.ma.asarray(values, dtype=float)), np.nan)
+    own = mtri.Triangulation(triangulation.x[t].ravel(), triangulation.y[t].ravel(),
+                             np.arange(t.size).reshape(t.shape))
+    shown = np.isfinite(v)
+    own.set_mask(~shown)  # (the hidden ones take a shown value: the colour scale is the shown ones')
+    fill = v[shown].min() if shown.any() else 0.0
+    im = ax.tripcolor(own, np.repeat(np.where(shown, v, fill), 3), shading="gouraud", **style)
+    im.set_in_layout(False)
+    return im
+
+
 def _deformation_scale(mesh, d):
     """A factor that shows the largest displacement as 10 % of the body's size."""
     size = float(np.ptp(mesh.p, axis=1).max())

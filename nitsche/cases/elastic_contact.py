@@ -268,6 +268,7 @@ def figures(problem, result, p, outdir):
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
     from nitsche.io import vertex_values
+    from nitsche.plot import cell_colours
     bodies = [(n, cell_von_mises(problem.by_name[n], result[n], E, nu))
               for n, E, nu in (("u1", p.E1, p.nu1), ("u2", p.E2, p.nu2))]
     x, lam, W = pressure(problem, result)
@@ -283,7 +284,7 @@ def figures(problem, result, p, outdir):
         d = vertex_values(f, result[n])
         tri = mtri.Triangulation(f.mesh.p[0] + scale * d[:, 0], f.mesh.p[1] + scale * d[:, 1],
                                  f.mesh.t.T)
-        im = ax.tripcolor(tri, facecolors=vm, cmap="viridis", edgecolors="none")
+        im = cell_colours(ax, tri, vm, cmap="viridis")
         vmax = max(vmax, float(np.percentile(vm, 99.5)))
         ax.triplot(tri, lw=0.1, color="k", alpha=0.3)
     for c in ax.collections:

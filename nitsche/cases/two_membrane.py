@@ -217,6 +217,7 @@ def figures(problem, result, p, outdir):
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
     from nitsche.io import vertex_values
+    from nitsche.plot import cell_colours
 
     parts = problem.split(result.x)
     f1, f2 = problem.by_name["u1"], problem.by_name["u2"]
@@ -241,8 +242,7 @@ def figures(problem, result, p, outdir):
     ax.set_title("lower membrane $u_1$ (blue), upper membrane $u_2 + d$ (orange)")
 
     ax = fig.add_subplot(1, 2, 2)
-    masked = np.ma.masked_where(per_cell <= 0, per_cell)
-    im = ax.tripcolor(tri, facecolors=masked, cmap="magma_r", edgecolors="none")
+    im = cell_colours(ax, tri, np.ma.masked_where(per_cell <= 0, per_cell), cmap="magma_r")
     ax.triplot(tri, color=(0, 0, 0, 0.06), linewidth=0.3)
     fig.colorbar(im, ax=ax, shrink=0.85, label="contact pressure $\\lambda_h$ (cell mean)")
     ax.set_aspect("equal")
