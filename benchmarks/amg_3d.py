@@ -5,7 +5,11 @@ For CASE at --level L (--set name=value ...), the chain 0..L-1 is solved once (t
 level L from that start (as nested iteration's finest level does: no lift, the minimum
 check) in its own process, the variants interleaved, --repeat times:
   amg         AMGCG as shipped (nitsche.linalg)
-  amg-before  AMGCG with pyamg's default options (its symmetric strength measure on every
+  amg-double  AMGCG as shipped with its hierarchy kept and applied in double precision
+  amg-s22     AMGCG of session 22: pyamg's hierarchy of the unscaled matrix (Jacobi
+              prolongation smoother, restarted Arnoldi for rho(D^-1 A)) in double
+              precision, applied by pyamg's own V-cycle, the options and rebuild rule as now
+  amg-before  amg-s22 with pyamg's default options (its symmetric strength measure on every
               level, the candidates improved by 4 Gauss-Seidel sweeps) and the earlier
               rebuild limit (4 x rate + 10 iterations)
   cholmod     CHOLMOD with factor reuse
@@ -32,15 +36,38 @@ import time
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
-VARIANTS = ("amg", "amg-before", "cholmod")
+VARIANTS = ("amg", "amg-double", "amg-s22", "amg-before", "cholmod")
+
+
+def session22(base):
+    """AMGCG with session 22's hierarchy: pyamg's smoothed aggregation of A itself in double
+    precision and pyamg's V-cycle (MultilevelSolver.aspreconditioner)."""
+    class AMGCG22(base):
+        @staticmethod
+        def options():
+            return dict(symmetry="symmetric", improve_candidates=None,
+                        strength=[(None, {}), ("symmetric", {"theta": 0.0})])
+
+        def _build(self, A):
+            import pyamg
+            B = self.B if self.B is not None and self.B.shape[0] == A.shape[0] else None
+            self.ml = pyamg.smoothed_aggregation_solver(A, B=B, **(self.pyamg_options or self.options()))
+            self.M, self.rate = self.ml.aspreconditioner(cycle="V"), None
+            self.setups += 1
+    return AMGCG22
 
 
 def solver(variant):
+    import numpy as np
     from nitsche.linalg import AMGCG
     if variant == "amg":
         return AMGCG()
+    if variant == "amg-double":
+        return AMGCG(dtype=np.float64)
+    if variant == "amg-s22":
+        return session22(AMGCG)()
     if variant == "amg-before":
-        return AMGCG(rebuild_factor=4.0, slack=10, pyamg_options=dict(symmetry="symmetric"))
+        return session22(AMGCG)(rebuild_factor=4.0, slack=10, pyamg_options=dict(symmetry="symmetric"))
     return variant
 
 
