@@ -43,15 +43,35 @@ def solve(case, level, degree, p, options, nested=True, verbose=False, engine=No
     return problem, result, its, failure
 
 
+# what Case.solve (a load path) and the cases' solve hooks attach to the problem they solve,
+# for the output hooks: carried to the problem the outputs are computed on
+SOLVE_RECORDS = ("path", "load_path")
+
+
 def whole(case, problem, result, degree, p):
     """The whole problem of a distributed one (rank 0 builds it for the outputs that are
     the case's own code on a whole problem: its set-up and memory are the serial ones) and
     the result on it."""
     serial = case.problem(problem.setup.level, degree, p)
     serial.set_state(problem.state()[:2])  # (its alpha0 is its own: the ranks' are rank-local)
-    if hasattr(problem, "path"):
-        serial.path = problem.path
+    carry(problem, serial)
+    if hasattr(serial, "path"):  # the steps' states without the ranks' alpha0
+        serial.path = dataclasses.replace(serial.path, states=[s[:2] for s in serial.path.states])
     return serial, dataclasses.replace(result, problem=serial)
+
+
+def part(problem, result):
+    """This rank's part of a distributed problem (its cells' elements: the outputs from the
+    pieces, Case.outputs_from_pieces) and the result on it (x whole)."""
+    carry(problem, problem.local)
+    return problem.local, dataclasses.replace(result, problem=problem.local)
+
+
+def carry(source, target):
+    """The solve's records (SOLVE_RECORDS) of the problem `source` onto `target`."""
+    for name in SOLVE_RECORDS:
+        if name in vars(source):
+            setattr(target, name, vars(source)[name])
 
 
 def run(case, level, degree, p, out, options, nested=True, verbose=False, global_check=False,
@@ -118,8 +138,7 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
             return 0 if data["converged"] else 1
         if from_pieces:  # every rank its part, the hooks' integrals reduced over the ranks
             pieces = partition.local(problem.comm)
-            problem = problem.local
-            result = dataclasses.replace(result, problem=problem)
+            problem, result = part(problem, result)
         else:
             problem, result = whole(case, problem, result, degree, p)
     with pieces:

@@ -154,6 +154,10 @@ class DistributedProblem:
         self.layout.set_values(data)
         return E, g[self.local.free], self.matrix
 
+    def linear_solver(self, name="auto"):
+        """A PETSc solver of the Newton matrix (KrylovSolver): a load path's predictor."""
+        return KrylovSolver(name, self)
+
     def collect(self):
         """Destroy the PETSc objects Python dropped (collective): petsc4py defers the
         destruction of parallel objects to PETSc.garbage_cleanup, so without it the

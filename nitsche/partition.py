@@ -27,7 +27,9 @@ _CELLS = {}  # (id(mesh), ranks) -> this rank's cells, dropped with the mesh
 
 @contextlib.contextmanager
 def local(comm):
-    """Build fields, measures and problems on this rank's cells of every mesh."""
+    """Build fields, measures and problems on this rank's cells of every mesh; comm None:
+    on every cell (inside a partition: what one rank computes by itself, e.g. a study of
+    its own whole problems)."""
     _ACTIVE.append(comm)
     try:
         yield comm

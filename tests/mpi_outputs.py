@@ -7,7 +7,8 @@ errors (e.g. nitsche.norms.exact_errors) from the pieces and from the whole prob
 largest relative difference of its report hook's numbers (seconds left out) and of each
 constraint's picture in solution.png (plot.multiplier_picture: the binned image of an area,
 the gathered graph of a line), with its kind, of the values its figures draw (FIGURE_DATA),
-and the figures each wrote."""
+and the figures each wrote, and whether partition.local(None) inside the partition builds
+the whole problem (as block-friction's theta study needs)."""
 import dataclasses
 import json
 import os
@@ -27,6 +28,8 @@ FIGURE_DATA = {
     "elastic-contact": lambda m, problem, r, p: [
         m.cell_von_mises(problem.by_name[n], r[n], E, nu)
         for n, E, nu in (("u1", p.E1, p.nu1), ("u2", p.E2, p.nu2))] + list(m.pressure(problem, r)),
+    "plate-plate": lambda m, problem, r, p: list(m.contact_points(problem, r.x)),
+    "plate-unilateral": lambda m, problem, r, p: [list(line) for line in m.edge_reactions(problem, r.x)],
 }
 
 
@@ -89,6 +92,8 @@ def main(specs):
             extra = report(dp.local, mine, p)
             drawn_pieces = drawn(case.module, dp.local, mine, p)
             figures = hook(dp.local, mine, p, os.path.join(folder, "pieces") if dp.rank == 0 else None)
+            with partition.local(None):  # a whole problem built inside the partition (a study's)
+                alone = [t.nel for t in make().assembler.terms]
         kinds = {c: pictures[c][0] for c in pictures}
         differences = {c: difference(pictures[c], multiplier_picture(values[c])) for c in values}
         if dp.rank == 0:
@@ -96,6 +101,7 @@ def main(specs):
             print(json.dumps(dict(case=name, errors=errors, serial_errors=case.errors(whole, serial, p),
                                   pictures=kinds, picture_differences=differences,
                                   report_keys=sorted(extra),
+                                  alone_is_whole=alone == [t.nel for t in whole.assembler.terms],
                                   report_difference=report_difference(extra, report(whole, serial, p)),
                                   figure_data_difference=report_difference(
                                       drawn_pieces, drawn(case.module, whole, serial, p)),

@@ -6,7 +6,8 @@ per rank (together every cell once, with the serial values); the ghosted free ve
 (gradient, Hessian products, norms) equal the serial ones; an indefinite Hessian takes the
 serial convexified steps; the minimum check runs on distributed vectors (fails at a saddle,
 passes at minima, gathers nothing); the errors, reports, figures' values and solution.png's
-pictures computed from the ranks' pieces equal the whole problem's; alpha0's order
+pictures computed from the ranks' pieces equal the whole problem's (also along the load
+paths of compression and indentation, and friction's solve hook); alpha0's order
 statistics are exact without gathering; PETSc holds no more after each Newton step.
 Skipped without petsc4py / mpirun (installed by `make petsc`)."""
 import json
@@ -319,24 +320,57 @@ def test_outputs_from_pieces_equal_the_whole_problems(ranks):
     pictures (the binned image of an area reduced over the ranks, the graph along a contact
     line gathered); every figure is written."""
     specs = ["obstacle:2", "signorini:1", "two-membrane:3", "elastic-contact:1:setup=hertz",
-             "membrane-solid:0"]
+             "membrane-solid:0", "plate-plate:0", "plate-unilateral:0", "block-friction:0"]
     lines = mpirun(ranks, str(ROOT / "tests" / "mpi_outputs.py"), *specs)
     runs = [json.loads(line) for line in lines.strip().splitlines() if line.startswith("{")]
     assert [r["case"] for r in runs] == [s.split(":")[0] for s in specs]
     for r in runs:
         assert cases.get(r["case"]).outputs_from_pieces
         assert r["errors"].keys() == r["serial_errors"].keys(), r
-        assert r["errors"] or r["case"] in ("two-membrane", "membrane-solid"), r
+        assert r["errors"] or r["case"] in ("two-membrane", "membrane-solid", "plate-plate",
+                                            "plate-unilateral", "block-friction"), r
         for k, v in r["serial_errors"].items():
             assert abs(r["errors"][k] - v) <= 1e-12 * abs(v), (r["case"], k, r["errors"][k], v)
         assert all(d <= 1e-12 for d in r["picture_differences"].values()), r
         assert r["report_difference"] <= 1e-12 and r["figure_data_difference"] <= 1e-12, r
         assert r["figures"] == r["whole_figures"], r
+        assert r["alone_is_whole"], r
     kinds = {k for r in runs for k in r["pictures"].values()}
     assert kinds == {"area", "line"}, kinds
     reports = {r["case"]: r["report_keys"] for r in runs}
     assert "condition_number" in reports["two-membrane"] and "von_mises_max" in reports["elastic-contact"]
     assert "first_principal_stress_max" in reports["membrane-solid"], reports
+    assert "total_contact_force" in reports["plate-plate"] and "lifted_length" in reports["plate-unilateral"]
+    figures = {r["case"]: r["figures"] for r in runs}
+    assert figures["plate-plate"] == ["plate_plate.png"], figures
+    assert figures["plate-unilateral"] == ["plate_unilateral.png"], figures
+
+
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+def test_load_path_outputs_from_pieces_equal_the_whole_problems(ranks):
+    """The load-path cases (and friction's solve hook) solved on the ranks as `nitsche run`
+    solves them: what their hooks compute from the ranks' parts (the contact force per step
+    summed over the ranks' facets, friction's loads summed and its interface line gathered,
+    compression's path records) equals what they compute on the whole problem rebuilt with the
+    path's steps, to 1e-12, and every figure is written."""
+    specs = ["compression:0:steps=2", "indentation:0:steps=2", "friction:0"]
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_outputs_paths.py"), *specs)
+    runs = [json.loads(line) for line in lines.strip().splitlines() if line.startswith("{")]
+    assert [r["case"] for r in runs] == [s.split(":")[0] for s in specs]
+    for r in runs:
+        assert cases.get(r["case"]).outputs_from_pieces and r["converged"], r
+        assert r["errors"].keys() == r["serial_errors"].keys(), r
+        for k, v in r["serial_errors"].items():
+            assert abs(r["errors"][k] - v) <= 1e-12 * abs(v), (r["case"], k, r["errors"][k], v)
+        assert all(d <= 1e-12 for d in r["picture_differences"].values()), r
+        assert r["report_difference"] <= 1e-12 and r["figure_data_difference"] <= 1e-12, r
+        assert r["figures"] == r["whole_figures"], r
+    runs = {r["case"]: r for r in runs}
+    assert runs["compression"]["steps"] == 2 and runs["indentation"]["steps"] >= 2, runs
+    assert runs["friction"]["errors"] and "cattaneo_mindlin" in runs["friction"]["report_keys"]
+    assert "force_depth" in runs["indentation"]["report_keys"]
+    assert runs["indentation"]["figures"] == ["force_depth.png"], runs
+    assert runs["friction"]["figures"] == ["friction_tractions.png"], runs
 
 
 @pytest.mark.parametrize("ranks", [2, 3])

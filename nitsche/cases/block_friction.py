@@ -23,6 +23,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementVector
 
 import nitsche as ni
+from nitsche import partition
 from nitsche.case import OneOf, POSITIVE
 from nitsche.io import write_json
 from nitsche.ops import dot, tangent, sym_grad
@@ -50,6 +51,7 @@ MU, LAM = E / (2 * (1 + NU)), E * NU / ((1 + NU) * (1 - 2 * NU))
 STUDY_ALPHA0 = [1 / 400, 1 / 100, 1 / 25, 1 / 5, 1, 5, 25, 100, 400]
 STUDY_THETAS = (1, 0, -1)
 STUDY_LAWS = ("inequality", "coulomb")
+OUTPUTS_FROM_PIECES = True  # report: the combined constraint report; the theta study: rank 0's own
 
 
 def sigma(u):
@@ -146,11 +148,13 @@ def plot_theta_study(rows, path, title=""):
 
 
 def figures(problem, result, p, folder):
-    """With theta_study: the sweep at this level against two levels finer."""
-    if not p.theta_study:
+    """With theta_study: the sweep at this level against two levels finer (whole problems
+    that rank 0 solves by itself under mpirun)."""
+    if not p.theta_study or folder is None:
         return []
     level = problem.setup.level
-    rows = theta_study(level, level + 2, (p.top_x, p.top_y))
+    with partition.local(None):
+        rows = theta_study(level, level + 2, (p.top_x, p.top_y))
     data = write_json(os.path.join(folder, "theta_study.json"),
                       dict(level=level, reference_level=level + 2, rows=rows))
     path = plot_theta_study(rows, os.path.join(folder, "theta_study.png"),

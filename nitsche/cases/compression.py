@@ -40,6 +40,7 @@ PARAMETERS = {
 RANGES = {"E": POSITIVE, "nu": POISSON, "R": POSITIVE, "compression": Interval(0.0, 0.9),
           "steps": Interval(1.0, closed_lo=True), "n": Interval(1.0, closed_lo=True)}
 DEGREES = (1, 2)
+OUTPUTS_FROM_PIECES = True  # report: the load path's records (the same on every rank)
 
 
 def half_disk(R, n):

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector
 
 import nitsche as ni
+from nitsche import partition
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE, ParameterError
 from nitsche.ops import dot, tangent
 from nitsche.cases.elastic_contact import elastic, stress
@@ -55,6 +56,7 @@ RANGES = {"E": POSITIVE, "nu": POISSON, "mu": POSITIVE, "Q_ratio": Interval(0.0,
           "theta": OneOf((1, 0, -1))}
 DEGREES = (1, 2)
 Q_TOLERANCE = 1e-3  # relative accuracy of the tangential load reached by the secant method
+OUTPUTS_FROM_PIECES = True  # the loads summed over the ranks' facets, the interface's points gathered
 
 
 def check(p):
@@ -114,9 +116,10 @@ def _step(problem, p, d, x, **options):
 
 
 def loads(problem, result):
-    """(P, Q): the normal and tangential forces on the interface."""
+    """(P, Q): the normal and tangential forces on the interface (summed over the ranks'
+    facets)."""
     v = problem.constraint_values(result.x)["contact"]
-    total = (v["W"][..., None] * v["multiplier"]).sum((0, 1))
+    total = partition.summed((v["W"][..., None] * v["multiplier"]).sum((0, 1)))
     return float(total[0]), float(abs(total[1]))
 
 
@@ -180,14 +183,16 @@ def _zone(x, f):
 
 
 def tractions(problem, result, p):
-    """Sorted x, pressure, shear (signed as the load), weights, s = lambda - g/alpha."""
+    """Sorted x, pressure, shear (signed as the load), weights, s = lambda - g/alpha (the
+    points of all ranks' contact facets, gathered: a line)."""
     v = problem.constraint_values(result.x)["contact"]
-    x, W = v["x"][..., 0].ravel(), v["W"].ravel()
-    P = v["multiplier"].reshape(-1, 2)
-    s = (v["lam"] - v["g"] / v["alpha"][..., None]).reshape(-1, 2)
+    x, W = partition.gathered(v["x"][..., 0].ravel()), partition.gathered(v["W"].ravel())
+    P = partition.gathered(v["multiplier"].reshape(-1, 2))
+    s = partition.gathered((v["lam"] - v["g"] / v["alpha"][..., None]).reshape(-1, 2))
     order = np.argsort(x)
+    x, W, P, s = x[order], W[order], P[order], s[order]
     sign = np.sign((W * P[:, 1]).sum()) or 1.0
-    return x[order], P[order, 0], sign * P[order, 1], W[order], s[order]
+    return x, P[:, 0], sign * P[:, 1], W, s
 
 
 def cattaneo_mindlin(problem, result, p):
@@ -246,6 +251,8 @@ def figures(problem, result, p, outdir):
     import matplotlib.pyplot as plt
     c = cattaneo_mindlin(problem, result, p)
     x, pn, q, W, s = tractions(problem, result, p)
+    if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
+        return []
     xs = np.linspace(-1.5 * c["contact_half_width"], 1.5 * c["contact_half_width"], 800)
     a, p0, ratio = c["hertz_half_width"], c["peak_pressure"], c["stick_ratio_reference"]
     P, a_h = c["normal_load"], c["contact_half_width"]

@@ -20,6 +20,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriMorley
 
 import nitsche as ni
+from nitsche import partition
 from nitsche.case import NONNEGATIVE, PLATE_POISSON, POSITIVE, ParameterError
 from nitsche.ops import hess
 
@@ -39,6 +40,7 @@ DEGREES = (2,)          # Morley: non-conforming quadratics
 RATE = {2: 1.0}
 PAPER = [dict(command="study", degree=2, levels=6, level=None, sets={}),
          dict(command="run", degree=2, levels=None, level=4, sets={})]
+OUTPUTS_FROM_PIECES = True  # report and figure: sums, maxima and contact points over the ranks
 
 
 def bending(H, D, nu):
@@ -99,14 +101,32 @@ def vertex_values(problem, x):
     return out
 
 
+def contact_area(problem, x):
+    """The measure of the points where lambda_N > 0 (summed over the ranks' cells)."""
+    v = problem.constraint_values(x)["contact"]
+    return float(partition.summed((v["W"] * (v["multiplier"] > 0)).sum()))
+
+
+def contact_points(problem, x):
+    """The points where lambda_N > 0 and lambda_N there (all ranks' points, gathered), in
+    the order of their coordinates."""
+    v = problem.constraint_values(x)["contact"]
+    xq, lam = v["x"].reshape(-1, 2), v["multiplier"].ravel()
+    xq, lam = partition.gathered(xq[lam > 0]), partition.gathered(lam[lam > 0])
+    order = np.lexsort((xq[:, 0], xq[:, 1]))
+    return xq[order], lam[order]
+
+
 def report(problem, result, p):
+    """The plates' deflections at the centre; the contact area, the total contact force and
+    the largest penetration (over the ranks' cells)."""
     v = problem.constraint_values(result.x)["contact"]
     vals = vertex_values(problem, result.x)
-    return dict(centre_u1=float(vals["u1"][np.argmin(np.hypot(*(problem.fields[0].mesh.p - 0.5)))]),
-                centre_u2=float(vals["u2"][np.argmin(np.hypot(*(problem.fields[0].mesh.p - 0.5)))]),
-                contact_area=float((v["W"] * (v["multiplier"] > 0)).sum()),
-                total_contact_force=float((v["W"] * v["multiplier"]).sum()),
-                max_penetration=float(np.maximum(-v["g"], 0).max()))
+    centre = np.argmin(np.hypot(*(problem.fields[0].mesh.p - 0.5)))
+    return dict(centre_u1=float(vals["u1"][centre]), centre_u2=float(vals["u2"][centre]),
+                contact_area=contact_area(problem, result.x),
+                total_contact_force=float(partition.summed((v["W"] * v["multiplier"]).sum())),
+                max_penetration=float(partition.largest(np.maximum(-v["g"], 0).max(initial=0.0))))
 
 
 def study_extra(problem, result, row):
@@ -119,10 +139,13 @@ def figures(problem, result, p, outdir):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
+    xq, lam = contact_points(problem, result.x)
+    area = contact_area(problem, result.x)
+    if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
+        return []
     mesh = problem.fields[0].mesh
     tri = mtri.Triangulation(mesh.p[0], mesh.p[1], mesh.t.T)
     vals = vertex_values(problem, result.x)
-    v = problem.constraint_values(result.x)["contact"]
     fig = plt.figure(figsize=(14, 4.4))
     ax = fig.add_subplot(1, 3, 1, projection="3d")
     ax.plot_trisurf(tri, vals["u1"], cmap="Blues", linewidth=0, alpha=0.9)
@@ -141,17 +164,14 @@ def figures(problem, result, p, outdir):
     ax2.set_title("deflections along y = 1/2")
     ax2.legend()
     ax3 = fig.add_subplot(1, 3, 3)
-    xq = v["x"].reshape(-1, 2)
-    lam = v["multiplier"].ravel()
-    act = lam > 0
-    sc = ax3.scatter(xq[act, 0], xq[act, 1], c=lam[act], s=6, cmap="magma")
+    sc = ax3.scatter(xq[:, 0], xq[:, 1], c=lam, s=6, cmap="magma")
     fig.colorbar(sc, ax=ax3, shrink=0.8, label=r"contact pressure $\lambda_N$")
     ax3.set_xlim(0, 1)
     ax3.set_ylim(0, 1)
     ax3.set_aspect("equal")
     ax3.set_xlabel("x")
     ax3.set_ylabel("y")
-    ax3.set_title(f"contact region, area {(v['W'] * act.reshape(v['W'].shape)).sum():.4g}")
+    ax3.set_title(f"contact region, area {area:.4g}")
     fig.tight_layout()
     path = os.path.join(outdir, "plate_plate.png")
     fig.savefig(path, dpi=120)

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 from skfem import MeshQuad
 
 import nitsche as ni
+from nitsche import partition
 from nitsche.bfs import ElementQuadBFSLocal
 from nitsche.case import NEGATIVE, PLATE_POISSON, POSITIVE
 from nitsche.ops import hess, grad3, tangent
@@ -37,6 +38,7 @@ RATE = {3: 2.0}         # paper: about 2 (measured step rates are ragged, mean ~
 PAPER = [dict(command="study", degree=3, levels=6, level=None, sets={}),
          dict(command="run", degree=3, levels=None, level=4, sets={})]
 EDGES = ("x = 0", "x = 1", "y = 0", "y = 1")
+OUTPUTS_FROM_PIECES = True  # report and figure: sums, extremes and edge lines over the ranks
 
 
 def shear_force(u, n, D, nu):
@@ -80,22 +82,47 @@ def support_quantities(problem, result, p):
     v = problem.constraint_values(result.x)["support"]
     W, lam_n, lam = v["W"], v["multiplier"], v["lam"]
     edge = edge_of(v["x"].mean(axis=1))
-    lifted = [float((W[edge == k] * (lam_n[edge == k] <= 0)).sum()) for k in range(4)]
+    lifted = partition.summed([(W[edge == k] * (lam_n[edge == k] <= 0)).sum() for k in range(4)])
     load = -p.f * 1.0  # total load on the unit square
+    reaction = float(support_reaction(problem, result.x))
     active = lam_n > 0
+    # strong-form shear force -V(u_h) on the supported part: >= 0 up to consistency
+    # (its extremes over the ranks' active points; infinite where no point is active)
+    low = float(partition.smallest(lam[active].min(initial=np.inf)))
+    high = float(partition.largest(lam[active].max(initial=-np.inf)))
     u = vertex_deflection(problem, result.x)
     corners = problem.fields[0].mesh.p
     at_corner = [int(np.argmin(np.hypot(corners[0] - a, corners[1] - b)))
                  for a, b in ((0, 0), (1, 0), (1, 1), (0, 1))]
-    return dict(lifted_length=lifted,
+    return dict(lifted_length=[float(s) for s in lifted],
                 lifted_length_mean=float(np.mean(lifted)),
-                reaction_total=float((W * lam_n).sum()), load_total=load,
-                reaction_balance=float((W * lam_n).sum() / load),
-                # strong-form shear force -V(u_h) on the supported part: >= 0 up to consistency
-                min_shear_reaction=float(lam[active].min()) if active.any() else 0.0,
-                max_shear_reaction=float(lam[active].max()) if active.any() else 0.0,
+                reaction_total=reaction, load_total=load,
+                reaction_balance=reaction / load,
+                min_shear_reaction=low if np.isfinite(low) else 0.0,
+                max_shear_reaction=high if np.isfinite(high) else 0.0,
                 corner_lift=[float(u[i]) for i in at_corner],
-                max_penetration=float(np.maximum(-v["g"], 0).max()))
+                max_penetration=float(partition.largest(np.maximum(-v["g"], 0).max(initial=0.0))))
+
+
+def support_reaction(problem, x):
+    """The total support reaction int lambda_N (summed over the ranks' facets)."""
+    v = problem.constraint_values(x)["support"]
+    return float(partition.summed((v["W"] * v["multiplier"]).sum()))
+
+
+def edge_reactions(problem, x):
+    """Per edge (EDGES): the positions along it of the support's quadrature points and
+    lambda_N there, in order along the edge (all ranks' points, gathered)."""
+    v = problem.constraint_values(x)["support"]
+    xq = partition.gathered(v["x"].reshape(-1, 2))
+    lam = partition.gathered(v["multiplier"].ravel())
+    edge = edge_of(xq)
+    out = []
+    for k in range(len(EDGES)):
+        t = np.where(k < 2, xq[:, 1], xq[:, 0])[edge == k]
+        o = np.argsort(t)
+        out.append((t[o], lam[edge == k][o]))
+    return out
 
 
 def report(problem, result, p):
@@ -115,9 +142,11 @@ def figures(problem, result, p, outdir):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    lines, total = edge_reactions(problem, result.x), support_reaction(problem, result.x)
+    if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
+        return []
     mesh = problem.fields[0].mesh
     u = vertex_deflection(problem, result.x)
-    v = problem.constraint_values(result.x)["support"]
     fig = plt.figure(figsize=(11, 4.4))
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     n = int(round(np.sqrt(mesh.p.shape[1])))
@@ -129,17 +158,12 @@ def figures(problem, result, p, outdir):
     ax.set_ylabel("y")
     ax.set_zlabel("deflection u")
     ax2 = fig.add_subplot(1, 2, 2)
-    xq = v["x"].reshape(-1, 2)
-    lam = v["multiplier"].ravel()
-    edge = edge_of(xq)
-    for k, name in enumerate(EDGES):
-        t = np.where(k < 2, xq[:, 1], xq[:, 0])[edge == k]
-        o = np.argsort(t)
-        ax2.plot(t[o], lam[edge == k][o], "-", lw=1.2, label=name)
+    for (t, lam), name in zip(lines, EDGES):
+        ax2.plot(t, lam, "-", lw=1.2, label=name)
     ax2.axhline(0, color="k", lw=0.5)
     ax2.set_xlabel("position along the edge")
     ax2.set_ylabel(r"support reaction $\lambda_N$ (force / length)")
-    ax2.set_title(f"total reaction {np.sum(v['W'] * v['multiplier']):.6f}, load {-p.f:.6f}")
+    ax2.set_title(f"total reaction {total:.6f}, load {-p.f:.6f}")
     ax2.legend()
     fig.tight_layout()
     path = os.path.join(outdir, "plate_unilateral.png")
