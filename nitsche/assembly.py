@@ -761,12 +761,32 @@ class Assembler:
                 elif hessian:
                     data[positions] += K.data
                 continue
-            out = t.run("full" if hessian else "gradient", x)
-            E += float(out[0].sum())
-            grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
-            if hessian:
-                scatter.add(data, out[2])
+            e, ge = self._assemble(t, scatter, x, data)
+            E += float(e.sum())
+            grad += np.bincount(t.global_dofs.ravel(), weights=ge.ravel(), minlength=self.ndofs)
         return E, grad, data
+
+    def _assemble(self, t, scatter, x, data=None):
+        """A term's element energies and gradients at x, and, data given, data += its Hessian
+        (CSR data), kernel call by kernel call: each call's element Hessians are scattered
+        as they come (Scatter.add_pieces: the sums of one scatter of all of them, bitwise),
+        so that no array of all elements' Hessians is formed."""
+        energies, gradients = np.empty(t.nel), None
+
+        def pieces():
+            nonlocal gradients
+            for s, out in t.calls("gradient" if data is None else "full", x):
+                if gradients is None:
+                    gradients = np.empty((t.nel,) + out[1].shape[1:])
+                energies[s:s + len(out[0])], gradients[s:s + len(out[1])] = out[0], out[1]
+                if data is not None:
+                    yield s, out[2]
+        if data is None:
+            for _ in pieces():
+                pass
+        else:
+            scatter.add_pieces(data, pieces())
+        return energies, gradients
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, without the Hessian."""
