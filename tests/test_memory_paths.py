@@ -137,3 +137,19 @@ def test_the_factor_is_not_held_through_the_constraint_report(monkeypatch):
     result = problem.minimize()
     assert result.converged and solvers and alive == [0]
     assert result.solver == "cholmod" and result.solver_stats["factorizations"] >= 1
+
+
+def test_the_meshes_mappings_are_dropped_after_set_up_and_made_again_equal():
+    """A built problem holds no scikit-fem mapping of its fields' meshes (the terms hold
+    what they read); the dof basis reads the mapping made again, equal to the first."""
+    problem = problem_of("two-membrane", 1)
+    for f in problem.fields:
+        assert "_cached_mapping" not in f.mesh.__dict__
+    f = problem.fields[0]
+    again = f.dof_basis.mapping
+    assert again is f.mesh._mapping() and "_cached_mapping" in f.mesh.__dict__
+    fresh = type(again)(f.mesh)
+    np.testing.assert_array_equal(again.A, fresh.A)
+    np.testing.assert_array_equal(again.invA, fresh.invA)
+    E = problem.minimize().energy
+    assert E == problem_of("two-membrane", 1).minimize().energy
