@@ -153,3 +153,33 @@ def test_the_meshes_mappings_are_dropped_after_set_up_and_made_again_equal():
     np.testing.assert_array_equal(again.invA, fresh.invA)
     E = problem.minimize().energy
     assert E == problem_of("two-membrane", 1).minimize().energy
+
+
+@pytest.mark.parametrize("name, level, degree, sets", [("obstacle", 2, 1, {}), ("obstacle", 1, 2, {}),
+                                                        ("two-membrane", 1, 1, {}),
+                                                        ("membrane-solid", 0, 1, {"cells": "tet"})])
+def test_a_quadratic_term_releases_its_data_and_gets_them_back_equal(name, level, degree, sets):
+    """Once assembled, a quadratic term on cells holds no per-element data (W, h, the
+    inverse Jacobians); read again (a new assembly, its views) they are the same arrays,
+    and the element Hessians and a new assembler's matrix are those of the term before."""
+    problem = problem_of(name, level, degree, sets)
+    a = problem.assembler
+    terms = [t for t in a.terms if t.is_quadratic and t.measure.kind == "cells"]
+    assert terms
+    x = problem.initial(None) + 1e-2 * np.random.default_rng(7).standard_normal(problem.ndofs)
+    before = [(np.array(t.W), np.array(t.h), [np.array(J) for J in t.J if J is not None],
+               t.run("full", x)[2]) for t in terms]
+    E, grad, data = a.evaluate(x)
+    for t, (W, h, Js, H) in zip(terms, before):
+        held = [c for c in [t.data["W"], t.data["h"]] + [J for J in t.J if J is not None]]
+        assert held and all("parts" not in c.__dict__ and "padded" not in c.__dict__ for c in held)
+        np.testing.assert_array_equal(t.run("full", x)[2], H)  # back from the measure
+        np.testing.assert_array_equal(t.W, W)
+        np.testing.assert_array_equal(t.h, h)
+        for J, J0 in zip([J for J in t.J if J is not None], Js):
+            np.testing.assert_array_equal(np.asarray(J), J0)
+    again = type(a)(a.terms, problem.ndofs)  # assembles the quadratic terms anew
+    E2, grad2, data2 = again.evaluate(x)
+    assert E2 == E
+    np.testing.assert_array_equal(grad2, grad)
+    np.testing.assert_array_equal(data2, data)
