@@ -558,12 +558,11 @@ class Term:
         gather on the host, where x lives) and the parameters, and back the outputs (on the
         CPU without a copy); given elements, their rows are gathered on the host."""
         dofs = self.field_dofs if elements is None else [d[elements] for d in self.field_dofs]
-        us = [x[d] for d in dofs]  # (host: x and the sparse solvers' data stay there)
         nel = self.nel if elements is None else len(elements)
         for i, (s, chunk) in enumerate(self.blocks(nel)):
             rows = None if elements is None else _pad(np.asarray(elements[s:s + chunk]), chunk)
             Ts = [a if a.shape[0] == 1 else a.parts[i] if rows is None else a.rows(rows) for a in self.tables]
-            u = [_pad(a[s:s + chunk], chunk) for a in us]
+            u = [_pad(x[d[s:s + chunk]], chunk) for d in dofs]  # the call's gather (host: x lives there)
             out = self.kernel(kind, chunk)(*Ts, *u, *self.per_point(i, chunk, rows), self.parameter_data(chunk))
             yield s, [host(o)[:max(0, min(chunk, nel - s))] for o in out]
 
@@ -816,24 +815,23 @@ class Assembler:
                 elif hessian:
                     data[positions] += K.data
                 continue
-            e, ge = self._assemble(t, scatter, x, data)
+            e, g = self._assemble(t, scatter, x, data)
             E += float(e.sum())
-            grad += np.bincount(t.global_dofs.ravel(), weights=ge.ravel(), minlength=self.ndofs)
+            grad += g
         return E, grad, data
 
     def _assemble(self, t, scatter, x, data=None):
-        """A term's element energies and gradients at x, and, data given, data += its Hessian
-        (CSR data), kernel call by kernel call: each call's element Hessians are scattered
-        as they come (Scatter.add_pieces: the sums of one scatter of all of them, bitwise),
-        so that no array of all elements' Hessians is formed."""
-        energies, gradients = np.empty(t.nel), None
+        """A term's element energies and its gradient at x, and, data given, data += its
+        Hessian (CSR data), kernel call by kernel call: each call's element gradients and
+        Hessians are summed as they come, in element order from zeros as one bincount and
+        one scatter of all elements sum them (bitwise the same; Scatter.add_pieces), so
+        that no array of all elements' gradients or Hessians is formed."""
+        energies, g = np.empty(t.nel), np.zeros(self.ndofs)
 
         def pieces():
-            nonlocal gradients
             for s, out in t.calls("gradient" if data is None else "full", x):
-                if gradients is None:
-                    gradients = np.empty((t.nel,) + out[1].shape[1:])
-                energies[s:s + len(out[0])], gradients[s:s + len(out[1])] = out[0], out[1]
+                energies[s:s + len(out[0])] = out[0]
+                np.add.at(g, t.global_dofs[s:s + len(out[1])], out[1])
                 if data is not None:
                     yield s, out[2]
         if data is None:
@@ -841,7 +839,7 @@ class Assembler:
                 pass
         else:
             scatter.add_pieces(data, pieces())
-        return energies, gradients
+        return energies, g
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, without the Hessian."""
