@@ -815,23 +815,25 @@ class Assembler:
                 elif hessian:
                     data[positions] += K.data
                 continue
-            e, g = self._assemble(t, scatter, x, data)
+            e, ge = self._assemble(t, scatter, x, data)
             E += float(e.sum())
-            grad += g
+            grad += np.bincount(t.global_dofs.ravel(), weights=ge.ravel(), minlength=self.ndofs)
         return E, grad, data
 
     def _assemble(self, t, scatter, x, data=None):
-        """A term's element energies and its gradient at x, and, data given, data += its
-        Hessian (CSR data), kernel call by kernel call: each call's element gradients and
-        Hessians are summed as they come, in element order from zeros as one bincount and
-        one scatter of all elements sum them (bitwise the same; Scatter.add_pieces), so
-        that no array of all elements' gradients or Hessians is formed."""
-        energies, g = np.empty(t.nel), np.zeros(self.ndofs)
+        """A term's element energies and gradients at x, and, data given, data += its Hessian
+        (CSR data), kernel call by kernel call: each call's element Hessians are scattered
+        as they come (Scatter.add_pieces: the sums of one scatter of all of them, bitwise),
+        so that no array of all elements' Hessians is formed.  (The gradients are summed by
+        one bincount: per call, np.add.at took 10x its time for 25 MB less at 1M cells.)"""
+        energies, gradients = np.empty(t.nel), None
 
         def pieces():
+            nonlocal gradients
             for s, out in t.calls("gradient" if data is None else "full", x):
-                energies[s:s + len(out[0])] = out[0]
-                np.add.at(g, t.global_dofs[s:s + len(out[1])], out[1])
+                if gradients is None:
+                    gradients = np.empty((t.nel,) + out[1].shape[1:])
+                energies[s:s + len(out[0])], gradients[s:s + len(out[1])] = out[0], out[1]
                 if data is not None:
                     yield s, out[2]
         if data is None:
@@ -839,7 +841,7 @@ class Assembler:
                 pass
         else:
             scatter.add_pieces(data, pieces())
-        return energies, g
+        return energies, gradients
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, without the Hessian."""
