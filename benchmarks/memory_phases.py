@@ -6,7 +6,13 @@ CG, constraint values; prolongation; the outputs) are labelled by wrapping their
 functions, and the highest sample of each phase is printed, highest first, with the
 process's VmHWM.  A diagnostic (the wrappers cost little; the seconds are not timings).
 
-    python benchmarks/memory_phases.py obstacle 7 [--out DIR] [--name memory_phases_obstacle7.json]
+--trace PHASE also follows NumPy's memory (tracemalloc, which sees NumPy's arrays but not
+CHOLMOD's factor nor JAX's buffers): each phase's highest traced total, and at the highest
+one within the phases whose label holds PHASE (e.g. newton) a snapshot, whose largest
+allocation sites are printed (the arrays alive there, by the line that allocated them;
+tracing slows the run several times).
+
+    python benchmarks/memory_phases.py obstacle 7 [--trace newton] [--out DIR] [--name memory_phases_obstacle7.json]
 """
 import argparse
 import functools
@@ -16,10 +22,12 @@ import sys
 import tempfile
 import threading
 import time
+import tracemalloc
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 stack, samples = ["imports"], []
+highest = dict(mb=0.0, snapshot=None, where="")  # the NumPy peak (--trace)
 
 
 def status(key):
@@ -30,9 +38,13 @@ def status(key):
                 return int(line.split()[1]) / 1024.0
 
 
-def sampler():
+def sampler(trace):
     while True:
-        samples.append((time.perf_counter(), status("VmRSS"), "/".join(stack[-3:])))
+        traced = tracemalloc.get_traced_memory()[0] / 2 ** 20 if trace else 0.0
+        where = "/".join(stack[-3:])
+        samples.append((time.perf_counter(), status("VmRSS"), where, traced))
+        if trace and trace in where and traced > highest["mb"] + 8:  # a new NumPy high there
+            highest.update(mb=traced, snapshot=tracemalloc.take_snapshot(), where=where)
         time.sleep(0.005)
 
 
@@ -56,8 +68,12 @@ def main():
     ap.add_argument("level", type=int)
     ap.add_argument("--out", help="output folder of the run (default: a temporary one)")
     ap.add_argument("--name", help="a results file in benchmarks/results")
+    ap.add_argument("--trace", metavar="PHASE", help="follow NumPy's memory (tracemalloc) and list "
+                    "what is alive at its peak within the phases labelled PHASE")
     args = ap.parse_args()
-    threading.Thread(target=sampler, daemon=True).start()
+    if args.trace:
+        tracemalloc.start()
+    threading.Thread(target=sampler, args=(args.trace,), daemon=True).start()
     from nitsche import assembly, case, commands, fields, linalg, newton, problem, study
     for owner, name, what in [
             (case.Case, "problem", "set-up"), (fields.Field, "__init__", "field"),
@@ -76,18 +92,33 @@ def main():
     cli(["run", args.case, "--level", str(args.level), "--out", out])
     time.sleep(0.02)
     t0, peaks = samples[0][0], {}
-    for t, rss, where in samples:
+    for t, rss, where, traced in samples:
         if where not in peaks or rss > peaks[where][0]:
-            peaks[where] = (rss, t - t0)
+            peaks[where] = (rss, t - t0, max(traced, peaks.get(where, (0, 0, 0))[2]))
+        elif traced > peaks[where][2]:
+            peaks[where] = peaks[where][:2] + (traced,)
     rows = sorted(peaks.items(), key=lambda kv: -kv[1][0])
     print(f"{args.case} level {args.level}: VmHWM {status('VmHWM'):.0f} MB", file=sys.stderr)
-    for where, (rss, t) in rows[:25]:
-        print(f"  {rss:7.0f} MB  at {t:6.2f} s  {where}", file=sys.stderr)
+    for where, (rss, t, traced) in rows[:25]:
+        print(f"  {rss:7.0f} MB  at {t:6.2f} s  {where}" + (f"  (NumPy {traced:.0f} MB)" if args.trace else ""),
+              file=sys.stderr)
+    sites = []
+    if highest["snapshot"] is not None:
+        stats = highest["snapshot"].statistics("lineno")
+        print(f"NumPy peak {highest['mb']:.0f} MB in {highest['where']}; largest allocation sites:",
+              file=sys.stderr)
+        for st in stats[:20]:
+            frame = st.traceback[0]
+            sites.append(dict(site=f"{os.path.relpath(frame.filename)}:{frame.lineno}", mb=st.size / 2 ** 20,
+                              blocks=st.count))
+            print(f"  {sites[-1]['mb']:7.1f} MB {st.count:6d} blocks  {sites[-1]['site']}", file=sys.stderr)
     if args.name:
         os.makedirs(RESULTS, exist_ok=True)
         with open(os.path.join(RESULTS, args.name), "w") as fh:
             json.dump(dict(case=args.case, level=args.level, vmhwm_mb=status("VmHWM"),
-                           phases=[dict(phase=w, peak_mb=r, at_seconds=t) for w, (r, t) in rows],
+                           phases=[dict(phase=w, peak_mb=r, at_seconds=t, numpy_mb=n if args.trace else None)
+                                   for w, (r, t, n) in rows],
+                           numpy_peak=dict(mb=highest["mb"], phase=highest["where"], sites=sites) if args.trace else None,
                            load=os.getloadavg(), date=time.strftime("%Y-%m-%d %H:%M")), fh, indent=1)
 
 

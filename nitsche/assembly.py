@@ -142,8 +142,13 @@ class Chunked:
     (`host`, read-only); elsewhere it is dropped and the host reads the pieces back."""
 
     def __init__(self, a, blocks):
-        self.shape, self.dtype = a.shape, a.dtype
+        self.shape, self.dtype, self.blocks = a.shape, a.dtype, blocks
         self.starts = np.array([s for s, _ in blocks], dtype=np.int64)
+        self._put(a)
+
+    def _put(self, a):
+        """The pieces of a on the device (and the aligned host copy they alias, on the CPU)."""
+        blocks = self.blocks
         end = blocks[-1][0] + blocks[-1][1]
         padded = empty((end,) + a.shape[1:])
         padded[:len(a)] = a
@@ -154,6 +159,23 @@ class Chunked:
         if shared:
             padded.flags.writeable = False
         self.host = padded[:a.shape[0]] if shared else None
+
+    def release(self, source):
+        """Drop the data, on the device and on the host; source() gives the same array
+        again, put there when next read (e.g. a quadratic term's data once assembled)."""
+        for name in ("parts", "padded", "host"):
+            self.__dict__.pop(name, None)
+        self._source = source
+
+    def __getattr__(self, name):
+        """The data after release(): put on the device again from their source."""
+        if name in ("parts", "padded", "host") and "_source" in self.__dict__:
+            a = np.asarray(self.__dict__.pop("_source")(), dtype=self.dtype)
+            if a.shape != self.shape:
+                raise RuntimeError(f"released data came back with shape {a.shape}, not {self.shape}")
+            self._put(a)
+            return getattr(self, name)
+        raise AttributeError(name)
 
     def __array__(self, dtype=None, copy=None):
         """All rows on the host."""
@@ -322,6 +344,38 @@ class Term:
             self.dofs[i] = dofs
             self.field_dofs[i] = dofs + self.offsets[i]
         self.global_dofs[...] = np.concatenate(self.field_dofs, axis=1)
+
+    def release(self):
+        """Drop the per-element data on the device that the measure gives again (W, h, x, n
+        and the tabulations), for a term on cells whose fields live on its mesh (e.g. a
+        quadratic term once assembled); a later kernel call (a new pattern, a stability
+        check) computes them again from the measure, the same arrays.  alpha0 is kept."""
+        m = self.measure
+        if m.kind != "cells" or any(f.mesh is not m.mesh for f in self.fields):
+            return
+
+        def again(what):
+            def source():
+                for f in self.fields:
+                    m.attach(f)
+                try:
+                    return what()
+                finally:
+                    m.release()
+            return source
+        given = dict(W=lambda: m.weights, h=lambda: m.h, x=lambda: np.moveaxis(m.points, 0, -1))
+        for k, a in self.data.items():
+            if a is not None:
+                a.release(again(given[k]))
+        for i, ((_, parts, _), f) in enumerate(zip(self.layout, self.fields)):
+            orders, kept = [o for o, _, _, _ in parts], list(self.kept[i])
+
+            def tabulation(f=f, orders=orders):
+                return m.tabulation(f, orders)[0]
+            if isinstance(self.J[i], Chunked):
+                self.J[i].release(again(lambda tab=tabulation: tab().invJ))
+            if isinstance(self.T[i], Chunked):
+                self.T[i].release(again(lambda tab=tabulation, kept=kept: tab()[:, :, kept]))
 
     def _chunked(self, a):
         """Per-element data on the device in the pieces of the kernel calls (Chunked)."""
@@ -504,12 +558,11 @@ class Term:
         gather on the host, where x lives) and the parameters, and back the outputs (on the
         CPU without a copy); given elements, their rows are gathered on the host."""
         dofs = self.field_dofs if elements is None else [d[elements] for d in self.field_dofs]
-        us = [x[d] for d in dofs]  # (host: x and the sparse solvers' data stay there)
         nel = self.nel if elements is None else len(elements)
         for i, (s, chunk) in enumerate(self.blocks(nel)):
             rows = None if elements is None else _pad(np.asarray(elements[s:s + chunk]), chunk)
             Ts = [a if a.shape[0] == 1 else a.parts[i] if rows is None else a.rows(rows) for a in self.tables]
-            u = [_pad(a[s:s + chunk], chunk) for a in us]
+            u = [_pad(x[d[s:s + chunk]], chunk) for d in dofs]  # the call's gather (host: x lives there)
             out = self.kernel(kind, chunk)(*Ts, *u, *self.per_point(i, chunk, rows), self.parameter_data(chunk))
             yield s, [host(o)[:max(0, min(chunk, nel - s))] for o in out]
 
@@ -729,6 +782,7 @@ class Assembler:
             else:
                 own, K = None, self.matrix(data)
             self._quadratics[id(t)] = (E, g, K, own)
+            t.release()  # its per-element data, until a kernel needs them again
         return self._quadratics[id(t)]
 
     def energy(self, x, terms=None):
@@ -761,12 +815,33 @@ class Assembler:
                 elif hessian:
                     data[positions] += K.data
                 continue
-            out = t.run("full" if hessian else "gradient", x)
-            E += float(out[0].sum())
-            grad += np.bincount(t.global_dofs.ravel(), weights=out[1].ravel(), minlength=self.ndofs)
-            if hessian:
-                scatter.add(data, out[2])
+            e, ge = self._assemble(t, scatter, x, data)
+            E += float(e.sum())
+            grad += np.bincount(t.global_dofs.ravel(), weights=ge.ravel(), minlength=self.ndofs)
         return E, grad, data
+
+    def _assemble(self, t, scatter, x, data=None):
+        """A term's element energies and gradients at x, and, data given, data += its Hessian
+        (CSR data), kernel call by kernel call: each call's element Hessians are scattered
+        as they come (Scatter.add_pieces: the sums of one scatter of all of them, bitwise),
+        so that no array of all elements' Hessians is formed.  (The gradients are summed by
+        one bincount: per call, np.add.at took 10x its time for 25 MB less at 1M cells.)"""
+        energies, gradients = np.empty(t.nel), None
+
+        def pieces():
+            nonlocal gradients
+            for s, out in t.calls("gradient" if data is None else "full", x):
+                if gradients is None:
+                    gradients = np.empty((t.nel,) + out[1].shape[1:])
+                energies[s:s + len(out[0])], gradients[s:s + len(out[1])] = out[0], out[1]
+                if data is not None:
+                    yield s, out[2]
+        if data is None:
+            for _ in pieces():
+                pass
+        else:
+            scatter.add_pieces(data, pieces())
+        return energies, gradients
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, without the Hessian."""

@@ -51,6 +51,16 @@ class DofBasis(CellBasis):
             doflocs[:, self.dofs.element_dofs[j]] = x[:, :, k]
         return doflocs
 
+    @property
+    def mapping(self):
+        """The mesh's mapping: scikit-fem's cache on the mesh, made again when a problem
+        has dropped it after its set-up (Problem.release_mappings)."""
+        return self.mesh._mapping()
+
+    @mapping.setter
+    def mapping(self, value):
+        """(AbstractBasis sets the mesh's own mapping, which the getter reads from the mesh.)"""
+
     @cached_property
     def basis(self):
         return [self.elem.gbasis(self.mapping, self.X, j, tind=self.tind) for j in range(self.Nbfun)]

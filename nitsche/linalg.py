@@ -70,7 +70,7 @@ class Cholmod:
             raise IndefiniteHessian(str(e))
         if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
             raise IndefiniteHessian("the LDL^T factorization has a non-positive pivot")
-        self.factored = A.copy()
+        self.factored = kept_values(A)
         self.factorizations += 1
         self.stale = False
 
@@ -103,6 +103,13 @@ class Cholmod:
 
     def stats(self):
         return dict(factorizations=self.factorizations, cg_iterations=list(self.iterations))
+
+
+def kept_values(A):
+    """A CSC matrix equal to A that keeps a copy of A's values and A's own index arrays
+    (the Newton matrices of a problem share theirs, and nothing writes into them): the
+    factored matrix for semidefinite_difference, without a second copy of its pattern."""
+    return sp.csc_matrix((A.data.copy(), A.indices, A.indptr), shape=A.shape, copy=False)
 
 
 def symmetric_csc(A):

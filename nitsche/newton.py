@@ -257,6 +257,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         t = time.perf_counter()
         if getattr(problem, "sliding", None) and problem.update_pairing(x):  # a new matrix structure
             lin = make_solver(solver, free.size, problem.dim, problem.symmetric)
+        A = M = None  # the last step's matrices are not held through this assembly
         E, g, A = problem.newton_system(x)
         timings["assembly"] += time.perf_counter() - t
         if not np.isfinite(E) or not np.all(np.isfinite(g)):
@@ -352,6 +353,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         timings["minimum_check"] = time.perf_counter() - t
     timings["compile"] = assembly.compile_seconds[0] - c0
     seconds = time.perf_counter() - t_start
+    solver_name, solver_stats = lin.name, lin.stats()
+    lin = A = M = None  # the factor and the matrices are not held through the report
     report = problem.constraint_report(x)
     infeasible = [name for name, r in report.items() if r["infeasible"]]
     for name in infeasible if converged else ():
@@ -362,8 +365,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
                       "its data (e.g. an obstacle above the boundary values, a gap that cannot close)",
                       FeasibilityWarning)
     return Result(x=x, converged=converged, reason=reason, iterations=it, residuals=residuals,
-                  energy=problem.energy(x), seconds=seconds, timings=timings, solver=lin.name,
-                  solver_stats=lin.stats(),
+                  energy=problem.energy(x), seconds=seconds, timings=timings, solver=solver_name,
+                  solver_stats=solver_stats,
                   constraints=report, problem=problem, ranks=getattr(problem, "ranks", 1), shifts=shifts,
                   active_count=sum(r["active_count"] for r in report.values()),
                   contact_measure=sum(r["contact_measure"] for r in report.values()

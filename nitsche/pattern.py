@@ -217,6 +217,21 @@ class Scatter:
         P += self.shift
         return P
 
+    def add_pieces(self, data, pieces):
+        """data += the element matrices of all elements given piece by piece, (start, H) with
+        H (e, k, k) those of the elements start, ..., start + e - 1 in order (a kernel's
+        calls): the same sums in the same order as add() of all of them at once (bitwise
+        equal), without an array of all of them.  Runs of one column: summed into zeros
+        entry by entry in element order, as add's one bincount, then added to data."""
+        if self.stride is not None:
+            for start, H in pieces:
+                self.add(data, H, start)
+            return
+        total = np.zeros_like(data)
+        for start, H in pieces:
+            np.add.at(total, self.P[start:start + len(H)].ravel(), H.ravel())
+        data += total
+
     def add(self, data, H, start=0):
         """data += the element matrices H (e, k, k) of the elements start, start + 1, ...:
         by one bincount for all elements with kept positions (runs of one column), else in

@@ -1,0 +1,185 @@
+"""The finest solve's memory savings give what the earlier paths gave: element Hessians
+scattered call by call (bitwise the sums of one scatter of all of them), the free block's
+int32 positions (the same matrix), the factored matrix kept as its values (the same
+decisions), the factor and Newton matrices not held through the constraint report."""
+import gc
+import weakref
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from nitsche import linalg
+from nitsche.cases import get
+from nitsche.linalg import HAVE_CHOLMOD, Cholmod
+
+
+def problem_of(name, level, degree=1, sets=None):
+    case = get(name)
+    return case.problem(level, degree, case.parameters(sets or {}))
+
+
+@pytest.mark.parametrize("name, level, degree, sets", [("obstacle", 2, 1, {}), ("obstacle", 1, 2, {}),
+                                                        ("membrane-solid", 0, 1, {"cells": "tet"})])
+def test_pieces_scatter_as_all_elements_at_once(name, level, degree, sets):
+    """Scatter.add_pieces of a term's element matrices given in uneven pieces equals add()
+    of all of them, bit for bit: runs of one column (scalar P1/P2) and node blocks (the
+    solid's vector field, by strides)."""
+    problem = problem_of(name, level, degree, sets)
+    a = problem.assembler
+    rng = np.random.default_rng(3)
+    strided = []
+    for t, scatter in zip(a.terms, a.scatter):
+        k = t.global_dofs.shape[1]
+        H = rng.standard_normal((t.nel, k, k))
+        base = rng.standard_normal(a.nnz)  # other terms' sums already there
+        expect = base.copy()
+        scatter.add(expect, H)
+        cuts = np.unique(np.concatenate([[0, t.nel], rng.integers(0, t.nel, 5)]))
+        got = base.copy()
+        scatter.add_pieces(got, ((s, H[s:e]) for s, e in zip(cuts[:-1], cuts[1:])))
+        np.testing.assert_array_equal(got, expect)
+        strided.append(scatter.stride is not None)
+    assert any(strided) == (name == "membrane-solid")
+
+
+@pytest.mark.parametrize("name, level, degree", [("obstacle", 2, 1), ("obstacle", 1, 2), ("two-membrane", 1, 1)])
+def test_evaluate_equals_the_all_elements_path(name, level, degree):
+    """J, the gradient and the Hessian's data of Assembler.evaluate (the non-quadratic terms'
+    kernel outputs scattered call by call) equal those of the earlier path (all elements'
+    energies, gradients and Hessians, then one bincount and one scatter), bit for bit, at a
+    point with active and inactive contact points; and without the Hessian."""
+    problem = problem_of(name, level, degree)
+    a = problem.assembler
+    x = problem.initial(None) + 0.3 * np.random.default_rng(2).standard_normal(problem.ndofs)
+    E, grad, data = a.evaluate(x)
+    E_ref, grad_ref, data_ref = 0.0, np.zeros(problem.ndofs), np.zeros(a.nnz)
+    nonlinear = 0
+    for t, scatter in zip(a.terms, a.scatter):
+        if t.is_quadratic:
+            E0, g0, K, positions = a._quadratic(t, scatter)
+            Kx = K @ x
+            E_ref += E0 + g0 @ x + 0.5 * x @ Kx
+            grad_ref = grad_ref + g0 + Kx
+            if positions is None:
+                data_ref += K.data
+            else:
+                data_ref[positions] += K.data
+            continue
+        nonlinear += 1
+        e, ge, H = t.run("full", x)
+        E_ref += float(e.sum())
+        grad_ref += np.bincount(t.global_dofs.ravel(), weights=ge.ravel(), minlength=problem.ndofs)
+        scatter.add(data_ref, H)
+    assert nonlinear >= 1
+    assert E == E_ref
+    np.testing.assert_array_equal(grad, grad_ref)
+    np.testing.assert_array_equal(data, data_ref)
+    E2, grad2 = a.gradient(x)
+    assert E2 == E
+    np.testing.assert_array_equal(grad2, grad)
+
+
+@pytest.mark.parametrize("name, level", [("obstacle", 2), ("two-membrane", 1),
+                                         ("membrane-solid", 0)])
+def test_the_free_block_in_int32_is_the_free_rows_and_columns(name, level):
+    """The Newton matrix's free-free block, built from int32 positions and counts, is the
+    full Hessian's rows and columns of the free dofs (same values, same structure)."""
+    problem = problem_of(name, level)
+    x = problem.initial(None) + 1e-2 * np.random.default_rng(5).standard_normal(problem.ndofs)
+    _, _, data = problem.assembler.evaluate(x)
+    A = problem._free_matrix(data)
+    full = problem.assembler.matrix(data)[problem.free][:, problem.free]
+    assert problem._sel.dtype == np.int32 and problem._ff_indptr.dtype == np.int32
+    assert A.indices.dtype == np.int32 and A.indptr.dtype == np.int32
+    assert np.array_equal(A.indptr, full.indptr) and np.array_equal(A.indices, full.indices)
+    np.testing.assert_array_equal(A.data, full.data)
+
+
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_the_factored_matrix_keeps_a_copy_of_the_values_only():
+    """Cholmod keeps the factored matrix's values (a copy) on the matrix's own index arrays:
+    the same matrix is solved by the factor, a later change of the values is seen."""
+    n = 200
+    F = sp.diags([np.full(n - 1, -1.0), np.full(n, 2.01), np.full(n - 1, -1.0)], [-1, 0, 1]).tocsr()
+    lin = Cholmod()
+    b = np.ones(n)
+    x = lin.solve(F, b)
+    assert np.shares_memory(lin.factored.indices, F.indices) and np.shares_memory(lin.factored.indptr, F.indptr)
+    assert not np.shares_memory(lin.factored.data, F.data)
+    F.data[0] += 1.0  # the caller changes its matrix: the factored values stay
+    assert lin.factored.data[0] == 2.01
+    assert abs(lin.factored - linalg.symmetric_csc(F)).max() == 1.0
+    F.data[0] -= 1.0
+    assert np.allclose(F @ x, b) and lin.is_positive_definite(F) and lin.factorizations == 1
+
+
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_the_factor_is_not_held_through_the_constraint_report(monkeypatch):
+    """Newton drops its solver (the factor and the factored matrix) and its matrices before
+    the constraint report, the last array-heavy step of a solve; the result is unchanged."""
+    solvers = []
+    init = Cholmod.__init__
+
+    def recorded(self, *a, **k):
+        init(self, *a, **k)
+        solvers.append(weakref.ref(self))
+    monkeypatch.setattr(Cholmod, "__init__", recorded)
+    problem = problem_of("obstacle", 2)
+    report = type(problem).constraint_report
+    alive = []
+
+    def checked(self, x):
+        gc.collect()
+        alive.append(sum(r() is not None for r in solvers))
+        return report(self, x)
+    monkeypatch.setattr(type(problem), "constraint_report", checked)
+    result = problem.minimize()
+    assert result.converged and solvers and alive == [0]
+    assert result.solver == "cholmod" and result.solver_stats["factorizations"] >= 1
+
+
+def test_the_meshes_mappings_are_dropped_after_set_up_and_made_again_equal():
+    """A built problem holds no scikit-fem mapping of its fields' meshes (the terms hold
+    what they read); the dof basis reads the mapping made again, equal to the first."""
+    problem = problem_of("two-membrane", 1)
+    for f in problem.fields:
+        assert "_cached_mapping" not in f.mesh.__dict__
+    f = problem.fields[0]
+    again = f.dof_basis.mapping
+    assert again is f.mesh._mapping() and "_cached_mapping" in f.mesh.__dict__
+    fresh = type(again)(f.mesh)
+    np.testing.assert_array_equal(again.A, fresh.A)
+    np.testing.assert_array_equal(again.invA, fresh.invA)
+    E = problem.minimize().energy
+    assert E == problem_of("two-membrane", 1).minimize().energy
+
+
+@pytest.mark.parametrize("name, level, degree, sets", [("obstacle", 2, 1, {}), ("obstacle", 1, 2, {}),
+                                                        ("two-membrane", 1, 1, {}),
+                                                        ("membrane-solid", 0, 1, {"cells": "tet"})])
+def test_a_quadratic_term_releases_its_data_and_gets_them_back_equal(name, level, degree, sets):
+    """Once assembled, a quadratic term on cells holds no per-element data (W, h, the
+    inverse Jacobians); read again (a new assembly, its views) they are the same arrays,
+    and the element Hessians and a new assembler's matrix are those of the term before."""
+    problem = problem_of(name, level, degree, sets)
+    a = problem.assembler
+    terms = [t for t in a.terms if t.is_quadratic and t.measure.kind == "cells"]
+    assert terms
+    x = problem.initial(None) + 1e-2 * np.random.default_rng(7).standard_normal(problem.ndofs)
+    before = [(np.array(t.W), np.array(t.h), [np.array(J) for J in t.J if J is not None],
+               t.run("full", x)[2]) for t in terms]
+    E, grad, data = a.evaluate(x)
+    for t, (W, h, Js, H) in zip(terms, before):
+        held = [c for c in [t.data["W"], t.data["h"]] + [J for J in t.J if J is not None]]
+        assert held and all("parts" not in c.__dict__ and "padded" not in c.__dict__ for c in held)
+        np.testing.assert_array_equal(t.run("full", x)[2], H)  # back from the measure
+        np.testing.assert_array_equal(t.W, W)
+        np.testing.assert_array_equal(t.h, h)
+        for J, J0 in zip([J for J in t.J if J is not None], Js):
+            np.testing.assert_array_equal(np.asarray(J), J0)
+    again = type(a)(a.terms, problem.ndofs)  # assembles the quadratic terms anew
+    E2, grad2, data2 = again.evaluate(x)
+    assert E2 == E
+    np.testing.assert_array_equal(grad2, grad)
+    np.testing.assert_array_equal(data2, data)
