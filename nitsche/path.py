@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .linalg import make_solver
 from .newton import norm
 from .reactions import reactions
 
@@ -105,9 +104,7 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
     if not 0 < min_step <= 1:
         raise ValueError(f"min_step (the smallest step, relative to the listed one) must be in (0, 1], not {min_step!r}")
     history = [f for f in problem.fields if getattr(f, "history_of", None) in problem.by_name]
-    name = newton_options.get("solver", "auto")
-    lin = problem.linear_solver(name) if hasattr(problem, "linear_solver") else \
-        make_solver(name, problem.free.size, problem.dim, problem.symmetric)  # the predictor's
+    lin = problem.linear_solver(newton_options.get("solver", "auto"))  # the predictor's
 
     def set_time(t):
         if parameter in problem.parameters:

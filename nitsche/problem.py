@@ -7,6 +7,7 @@ import scipy.sparse as sp
 from . import partition
 from .assembly import Assembler, ConstantDensity, Parameters, Term, check_arguments
 from .functional import Integral
+from .linalg import make_solver
 from .measures import cells
 from .stability import SingularEnergy, largest_generalized_eigenvalue
 
@@ -384,6 +385,11 @@ class Problem:
         step[self.fixed] = d
         x[self.free] += solve(self._free_matrix(data), -(self.assembler.matrix(data) @ step)[self.free])
         return x
+
+    def linear_solver(self, name="auto"):
+        """A linear solver of its Newton matrices by name (nitsche.linalg.make_solver for its
+        free unknowns, dimension and symmetry; nitsche.distributed's problems give a PETSc one)."""
+        return make_solver(name, self.free.size, self.dim, self.symmetric)
 
     def minimize(self, x0=None, **options):
         """Newton's method from x0; see nitsche.newton.newton for the options."""
