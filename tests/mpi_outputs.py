@@ -28,7 +28,7 @@ FIGURE_DATA = {
     "elastic-contact": lambda m, problem, r, p: [
         m.cell_von_mises(problem.by_name[n], r[n], E, nu)
         for n, E, nu in (("u1", p.E1, p.nu1), ("u2", p.E2, p.nu2))] + list(m.pressure(problem, r)),
-    "plate-plate": lambda m, problem, r, p: list(m.contact_points(problem, r.x)),
+    "plate-plate": lambda m, problem, r, p: list(m.contact_points(problem.constraint_values(r.x)["contact"])),
     "plate-unilateral": lambda m, problem, r, p: [list(line) for line in m.edge_reactions(problem, r.x)],
 }
 

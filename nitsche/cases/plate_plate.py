@@ -101,16 +101,15 @@ def vertex_values(problem, x):
     return out
 
 
-def contact_area(problem, x):
-    """The measure of the points where lambda_N > 0 (summed over the ranks' cells)."""
-    v = problem.constraint_values(x)["contact"]
+def contact_area(v):
+    """The measure of the points where lambda_N > 0 (summed over the ranks' cells); v the
+    contact constraint's values (Problem.constraint_values)."""
     return float(partition.summed((v["W"] * (v["multiplier"] > 0)).sum()))
 
 
-def contact_points(problem, x):
+def contact_points(v):
     """The points where lambda_N > 0 and lambda_N there (all ranks' points, gathered), in
-    the order of their coordinates."""
-    v = problem.constraint_values(x)["contact"]
+    the order of their coordinates; v as for contact_area."""
     xq, lam = v["x"].reshape(-1, 2), v["multiplier"].ravel()
     xq, lam = partition.gathered(xq[lam > 0]), partition.gathered(lam[lam > 0])
     order = np.lexsort((xq[:, 0], xq[:, 1]))
@@ -124,7 +123,7 @@ def report(problem, result, p):
     vals = vertex_values(problem, result.x)
     centre = np.argmin(np.hypot(*(problem.fields[0].mesh.p - 0.5)))
     return dict(centre_u1=float(vals["u1"][centre]), centre_u2=float(vals["u2"][centre]),
-                contact_area=contact_area(problem, result.x),
+                contact_area=contact_area(v),
                 total_contact_force=float(partition.summed((v["W"] * v["multiplier"]).sum())),
                 max_penetration=float(partition.largest(np.maximum(-v["g"], 0).max(initial=0.0))))
 
@@ -139,8 +138,8 @@ def figures(problem, result, p, outdir):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
-    xq, lam = contact_points(problem, result.x)
-    area = contact_area(problem, result.x)
+    v = problem.constraint_values(result.x)["contact"]
+    (xq, lam), area = contact_points(v), contact_area(v)
     if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
         return []
     mesh = problem.fields[0].mesh
