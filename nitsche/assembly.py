@@ -38,6 +38,7 @@ import scipy.sparse as sp
 
 from jax.extend.core import Literal
 
+from . import kernel_store
 from .device import empty, host, on_device
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
@@ -99,9 +100,48 @@ def _key(obj, depth, functions):
 
 
 def _identity(obj):
-    """An identity key, valid while the object lives (it is kept alive here)."""
+    """An identity key, valid while the object lives (it is kept alive here) and only in
+    this process (not stored on disk: kernel_store)."""
     _ALIVE[id(obj)] = obj
-    return ("id", id(obj))
+    return ("id", kernel_store.Identity(id(obj)))
+
+
+def _cached(key, compute):
+    """compute() for key, computed once per process (_COMPILED); the seconds it takes are
+    added to compile_seconds."""
+    if key not in _COMPILED:
+        t = time.perf_counter()
+        _COMPILED[key] = compute()
+        compile_seconds[0] += time.perf_counter() - t
+    return _COMPILED[key]
+
+
+def _stored(key, compute):
+    """compute() for key, loaded from disk where an earlier process stored it (kernel_store,
+    keys that mean the same in another process), else computed and stored."""
+    name = kernel_store.digest(key)
+    value = kernel_store.load(name) if name else None
+    if value is None:
+        value = compute()
+        if name:
+            kernel_store.save(name, value)
+    return value
+
+
+def _compile(jitted, args, name):
+    """The compiled program of jitted for arguments of the shapes args: from its lowered
+    program stored under name (kernel_store; no tracing), else traced, stored and compiled
+    (a program that cannot be exported is compiled directly)."""
+    exported = kernel_store.load(name) if name else None
+    if exported is None:
+        if name is None:
+            return jitted.lower(*args).compile()
+        try:
+            exported = jax.export.export(jitted)(*args)
+        except Exception:  # noqa: BLE001 -- not exportable (e.g. a custom call): not stored
+            return jitted.lower(*args).compile()
+        kernel_store.save(name, exported)
+    return jax.jit(exported.call).lower(*args).compile()
 
 
 def global_names(code):
@@ -482,14 +522,14 @@ class Term:
         if self.parameter_names:
             return False
         if not hasattr(self, "_quadratic"):
-            key = ("quadratic", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
-            if key not in _COMPILED:
+            def quadratic():
                 m = sum(mf for mf, _ in self.sizes)
                 vec = jnp.zeros(self.dim)
                 second = jax.jacfwd(derivative(self._point_fn(), self.residual))
                 jaxpr = jax.make_jaxpr(second)(jnp.zeros(m), vec, vec, 0.1, 1.0, self._theta0())
-                _COMPILED[key] = not _depends_on_first_input(jaxpr.jaxpr)
-            self._quadratic = _COMPILED[key]
+                return not _depends_on_first_input(jaxpr.jaxpr)
+            key = ("quadratic", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
+            self._quadratic = _cached(key, lambda: _stored(key, quadratic))
         return self._quadratic
 
     @property
@@ -500,9 +540,7 @@ class Term:
         if self.residual:
             return tuple((True,) * len(self.sizes) for _ in self.sizes)
         if not hasattr(self, "_coupling"):
-            key = ("coupling", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept),
-                   self.parameter_names)
-            if key not in _COMPILED:
+            def coupling():
                 sizes = [mf for mf, _ in self.sizes]
                 nf = len(sizes)
                 args = [jnp.zeros(mf) for mf in sizes] + [jnp.zeros(self.dim), jnp.zeros(self.dim), 0.1, 1.0,
@@ -512,8 +550,10 @@ class Term:
                     jaxpr = jax.make_jaxpr(jax.grad(self._point_fn(by_field=True), argnums=i))(*args).jaxpr
                     coupled.append(tuple(any(_dependent_outputs(jaxpr, [k == j for k in range(len(jaxpr.invars))]))
                                          for j in range(nf)))
-                _COMPILED[key] = tuple(coupled)
-            self._coupling = _COMPILED[key]
+                return tuple(coupled)
+            key = ("coupling", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept),
+                   self.parameter_names)
+            self._coupling = _cached(key, lambda: _stored(key, coupling))
         return self._coupling
 
     def kernel(self, kind, chunk):
@@ -524,8 +564,9 @@ class Term:
         key = (kind, self.residual, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), chunk,
                tuple((a.shape[0] == 1,) + a.shape[1:] for a in self.tables), tuple(self.maps),
                self.dim, self.has_normal, self.parameter_names)
-        if key not in _COMPILED:
-            coupling = self.coupling if kind == "full" else None
+        coupling = self.coupling if kind == "full" else None
+
+        def compiled():
             fn = _build(kind, self._point_fn(), self.sizes, chunk, self.nq, coupling, self.residual,
                         self.maps, self.kept)
             args = [jax.ShapeDtypeStruct((1 if a.shape[0] == 1 else chunk,) + a.shape[1:], jnp.float64)
@@ -534,10 +575,8 @@ class Term:
             point = (self.nq, self.dim)
             args += [jax.ShapeDtypeStruct((chunk,) + shape, jnp.float64)  # W, x, n, h, alpha0, parameters
                      for shape in ((self.nq,), point, point, (), (), (self.parameter_index.size,))]
-            t = time.perf_counter()
-            _COMPILED[key] = jax.jit(fn).lower(*args).compile()
-            compile_seconds[0] += time.perf_counter() - t
-        self._kernels[kind, chunk] = _COMPILED[key]
+            return _compile(jax.jit(fn), args, kernel_store.digest(key))
+        self._kernels[kind, chunk] = _cached(key, compiled)
         return self._kernels[kind, chunk]
 
     def blocks(self, nel):

@@ -26,6 +26,7 @@ without a potential (Coulomb) or with theta != 1 enters as this residual.
 """
 import inspect
 import math
+from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
@@ -175,13 +176,15 @@ def _ball(t, radius):
             jnp.where(inside, 0.5 * t2, radius * norm - 0.5 * radius ** 2))
 
 
-class Projection:
+class Projection(NamedTuple):
     """The projection P onto the constraint's set K and, where it has one, its potential
-    phi (grad phi = P); for vectors the first component is the normal one."""
-
-    def __init__(self, kind, project, potential=None, friction=None, threshold=None):
-        self.kind, self.project, self.potential = kind, project, potential
-        self.friction, self.threshold = friction, threshold
+    phi (grad phi = P); for vectors the first component is the normal one.  A value (a
+    tuple): densities that read it are keyed by what it holds, also across processes."""
+    kind: str
+    project: Callable
+    potential: Callable = None
+    friction: float = None
+    threshold: float = None
 
     @property
     def frictional(self):
