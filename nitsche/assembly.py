@@ -48,7 +48,8 @@ from .pattern import Pattern
 # Quadrature points per kernel call: small, large.  Each size is a kernel shape to load (or
 # compile) once per process; a nested chain loads the small set on its coarse levels and
 # the large one from the level with a whole large chunk (2D P1, 130k unknowns: level 4),
-# about 0.3-0.45 s CPU of loading per set from the persistent cache (mostly tracing).  One
+# about 0.3-0.45 s CPU of loading per set from the persistent cache (then mostly tracing,
+# which kernel_store now skips: 0.1-0.2 s a set).  One
 # size for all was measured (2026-12-02) and rejected: the large one alone cut the
 # obstacle's chain to 130k from 6.8-7.0 to 5.8 s CPU, but a padded 2^15-point call costs
 # 1-19 ms in 2D P1 and 0.2-1.8 s in 3D (a 3D P1 energy 5.5 us, a P2 contact 54 us a point),
