@@ -5,7 +5,8 @@ while each rank builds its part of the problem and Newton solves from zero; rank
 JSON line: per rank, VmHWM after the set-up and after the solve, and the highest sample of
 each phase (set-up; Newton: evaluate, matrix values, KSP solve, line search, minimum check,
 constraint report, the result's all-gather), highest first, and the resident memory at the
-start of each Newton iteration (its growth over the iterations); with PETSc's allocations
+start of each Newton iteration (its growth over the iterations) and the CPU seconds of the
+solve (newton_cpu_s, process time); with PETSc's allocations
 traced (PETSC_OPTIONS=-malloc_debug) also what PETSc holds then (PetscMallocGetCurrentUsage),
 to tell PETSc's objects from the rest of the heap.  A diagnostic: the seconds are not
 timings."""
@@ -14,6 +15,7 @@ import json
 import os
 import sys
 import threading
+import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from memory_phases import label, sampler, samples, stack, status  # noqa: E402
@@ -30,7 +32,7 @@ def petsc_mib():
 
 
 def main(name, level, solver):
-    threading.Thread(target=sampler, daemon=True).start()
+    threading.Thread(target=sampler, args=(None,), daemon=True).start()
     from petsc4py import PETSc  # noqa: F401 (its memory counted in the imports)
     from nitsche import assembly, cases, distributed, newton
     for owner, fn, what in [
@@ -59,12 +61,14 @@ def main(name, level, solver):
     imports = status("VmHWM")
     problem = distributed.DistributedProblem.build(lambda: case.problem(level, case.degrees[0], p))
     after_setup = status("VmHWM")
+    cpu = time.process_time()
     result = problem.minimize(solver=solver)
+    cpu = time.process_time() - cpu
     after_solve = status("VmHWM")
     peaks = {}
-    for _, rss, where in list(samples):
+    for _, rss, where, _ in list(samples):
         peaks[where] = max(rss, peaks.get(where, 0.0))
-    row = dict(ranks=problem.ranks, imports_mib=round(imports), setup_mib=round(after_setup),
+    row = dict(ranks=problem.ranks, newton_cpu_s=round(cpu, 2), imports_mib=round(imports), setup_mib=round(after_setup),
                solve_mib=round(after_solve), end_rss_mib=round(status("VmRSS")),
                end_petsc_mib=round(petsc_mib(), 1),
                rss_petsc_per_iteration=iterations,

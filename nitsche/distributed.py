@@ -7,14 +7,17 @@ divided among the ranks; the meshes stay whole on every rank.
 
 - a free dof is owned by the lowest rank among the elements that hold it; the free dofs a
   rank's elements hold are its owned dofs and its ghosts;
-- the free vectors of Newton's method (x's free part, the gradient, the step, A v) are, on
-  each rank, valid on its held dofs (arrays of the serial length, other entries unused):
-  the gradient is summed by a PETSc scatter that adds the ghosts' values to their owners'
-  and sends the sums back (Layout.assembled), the step and A v are scattered from the PETSc
-  vector to the held dofs (Layout.held_values); norms and dot products sum the owned
-  entries over the ranks (newton.norm, newton.dot), J_h is summed; so only scalars, the
-  ghosts' values and the fixed dofs' gradient entries (the reactions) travel, and every
-  rank holds the same bits of every number it decides on;
+- the free vectors of Newton's method (x's free part, the gradient's, the step, A v) are,
+  on each rank, arrays of its held free dofs in its local numbering (Layout.held: the owned
+  dofs first, in PETSc's order, then the ghosts), which newton takes and gives back through
+  free_part(x) and with_free(x, v): the gradient is summed by a PETSc scatter that adds the
+  ghosts' values to their owners' and sends the sums back (Layout.assembled), the step and
+  A v are scattered from the PETSc vector to the held dofs (Layout.held_values, the
+  scatter's own array); norms and dot products sum the owned entries (the first ones) over
+  the ranks (newton.norm, newton.dot), J_h is summed; so only scalars, the ghosts' values
+  and the fixed dofs' gradient entries (the reactions) travel, and every rank holds the
+  same bits of every number it decides on; x itself and the gradient keep the serial
+  length (the local assembler's dof numbering);
 - the Hessian on the free dofs is a PETSc AIJ matrix: its COO pattern (each rank's
   free-free entries, those of rows another rank owns included) is set once per mesh, its
   values each step; the Newton systems are solved by a PETSc KSP;
@@ -26,8 +29,8 @@ divided among the ranks; the meshes stay whole on every rank.
 - petsc4py keeps the parallel PETSc objects Python drops until PETSc.garbage_cleanup:
   it runs once per Newton system (collect).
 
-Newton itself is nitsche.newton.newton, unchanged but for the norms and dot products it
-asks of the problem: the same stopping test, line search and result; `ranks` is R.
+Newton itself is nitsche.newton.newton, unchanged but for the norms, dot products and free
+parts it asks of the problem: the same stopping test, line search and result; `ranks` is R.
 """
 import os
 
@@ -99,6 +102,7 @@ class DistributedProblem:
         self.straddling = self.comm.allreduce(sum(
             int((self.layout.owner[t.global_dofs] != self.rank).any(axis=1).sum())
             for t in local.constraint_terms))  # constraint elements holding another rank's dofs
+        self.layout.owner = None  # (a rank per dof) read by the set-up only
 
     @classmethod
     def build(cls, make, comm=None):
@@ -122,19 +126,33 @@ class DistributedProblem:
         return total
 
     def norm(self, v):
-        """|v| of a free vector (this rank's entries valid on the dofs its elements hold):
-        its owned entries' squares summed over the ranks (newton.norm)."""
+        """|v| of a free vector (this rank's held free dofs, Layout.held): its owned entries'
+        squares summed over the ranks (newton.norm)."""
         return float(np.sqrt(self.dot(v, v)))
 
     def dot(self, a, b):
-        """a . b of free vectors, over the ranks' owned entries (newton.dot)."""
-        return float(self.summed(np.dot(a[self.layout.mine], b[self.layout.mine]))[0])
+        """a . b of free vectors, over the ranks' owned entries (the first Layout.owned of
+        each; newton.dot)."""
+        n = self.layout.owned
+        return float(self.summed(np.dot(a[:n], b[:n]))[0])
+
+    def free_part(self, x):
+        """The free vector of the dof vector x: its entries on this rank's held free dofs
+        (Layout.held's order; newton.free_part)."""
+        return x[self.layout.dofs]
+
+    def with_free(self, x, v):
+        """A copy of the dof vector x with the free vector v on this rank's held free dofs
+        (newton.with_free)."""
+        y = np.array(x, dtype=float)
+        y[self.layout.dofs] = v
+        return y
 
     def whole(self, x):
         """x (valid on the dofs this rank's elements hold) with every free dof's value: an
         all-gather, for the result and the outputs."""
         x = np.array(x, dtype=float)
-        x[self.local.free] = self.layout.gather(self.layout.vector(x[self.local.free]))
+        x[self.local.free] = self.layout.gather(self.layout.vector(self.free_part(x)))
         return x
 
     def energy(self, x):
@@ -142,17 +160,18 @@ class DistributedProblem:
         return float(self.summed(self.local.assembler.energy(x))[0])
 
     def gradient(self, x):
-        """The gradient of J_h at x: on the fixed dofs and the free dofs this rank's
-        elements hold (zero on the other free dofs)."""
+        """The gradient of J_h at x (a dof vector): on the fixed dofs and the free dofs this
+        rank's elements hold (zero on the other free dofs)."""
         return self.assembler.gradient(x)[1]
 
     def newton_system(self, x):
-        """J_h(x), its gradient on the free dofs and the PETSc Hessian on them (as a
-        DistributedMatrix); first the last step's PETSc vectors are destroyed (collect)."""
+        """J_h(x), its gradient on this rank's held free dofs (free_part) and the PETSc
+        Hessian on the free dofs (as a DistributedMatrix); first the last step's PETSc
+        vectors are destroyed (collect)."""
         self.collect()
         E, g, data = self.assembler.evaluate(x)
         self.layout.set_values(data)
-        return E, g[self.local.free], self.matrix
+        return E, self.free_part(g), self.matrix
 
     def linear_solver(self, name="auto"):
         """A PETSc solver of the Newton matrix (KrylovSolver): a load path's predictor."""
@@ -176,8 +195,8 @@ class DistributedProblem:
         self.layout.set_values(data)
         step = np.zeros(self.local.ndofs)
         step[self.local.fixed] = d
-        rhs = self.layout.assembled((self.local.assembler.matrix(data) @ step)[self.local.free])
-        x[self.local.free] += solve(self.matrix, -rhs)
+        rhs = self.layout.assembled(self.free_part(self.local.assembler.matrix(data) @ step))
+        x[self.layout.dofs] += solve(self.matrix, -rhs)
         return x
 
     def check_finite(self, x):
@@ -206,8 +225,7 @@ class DistributedProblem:
         alpha0 and its limits per element are gathered for their medians."""
         held = np.zeros_like(x)
         held[self.local.fixed] = x[self.local.fixed]
-        on = self.local.free[self.layout.held]
-        held[on] = x[on]
+        held[self.layout.dofs] = self.free_part(x)
         return report_constraints(self.local.constraints, self.local.constraint_values(x),
                                   self.local.split(held), self.local.alpha0, self.local.limits,
                                   gather=self.statistics)
@@ -283,7 +301,9 @@ class SummedAssembler:
     ranks of their local assemblies: J summed over the ranks (NaN on every rank where one
     rank's gradient is not finite), the gradient summed on the dofs this rank's elements
     hold (free: Layout.assembled; fixed: a reduction of those alone) and zero on the other
-    free dofs; the Hessian data stays this rank's (on its local pattern)."""
+    free dofs; the Hessian data stays this rank's (on its local pattern).  The sums replace
+    the local gradient's entries in place (it is zero on the free dofs the rank does not
+    hold)."""
 
     def __init__(self, dp):
         self.dp, self.terms = dp, dp.local.assembler.terms
@@ -291,10 +311,10 @@ class SummedAssembler:
     def evaluate(self, x, terms=None, hessian=True):
         local, layout = self.dp.local, self.dp.layout
         E, g, data = local.assembler.evaluate(x, terms, hessian)
-        total = np.zeros_like(g)
-        total[local.free] = layout.assembled(g[local.free])
-        total[local.fixed] = self.dp.summed(g[local.fixed])
-        return float(self.dp.summed(E if np.all(np.isfinite(g)) else np.nan)[0]), total, data
+        E = E if np.all(np.isfinite(g)) else np.nan
+        g[layout.dofs] = layout.assembled(g[layout.dofs])
+        g[local.fixed] = self.dp.summed(g[local.fixed])
+        return float(self.dp.summed(E)[0]), g, data
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, summed over the ranks."""
@@ -303,7 +323,10 @@ class SummedAssembler:
 
 class Layout:
     """The free dofs numbered rank after rank for PETSc (order[k]: the serial free index of
-    PETSc's dof k) and the COO pattern of each rank's free-free Hessian entries."""
+    PETSc's dof k), this rank's local numbering of the free dofs its elements hold (held[i]:
+    the serial free index of local free dof i; the `owned` ones first, in PETSc's order,
+    then the ghosts; dofs: their dofs in the dof vector) and the COO pattern of each rank's
+    free-free Hessian entries."""
 
     def __init__(self, dp):
         from mpi4py import MPI
@@ -331,7 +354,10 @@ class Layout:
         self.owner = owner
         self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
         self.unshifted = None  # the assembled diagonal while a shift is applied
-        self.held = np.flatnonzero(held[problem.free])  # this rank's free dofs: owned and ghosts
+        ghost = held[problem.free]
+        ghost[self.mine] = False
+        self.held = np.concatenate([self.mine, np.flatnonzero(ghost)])  # owned, then ghosts
+        self.owned, self.dofs = self.mine.size, problem.free[self.held]
         petsc = np.empty(self.n, np.int64)
         petsc[self.order] = np.arange(self.n)
         self.petsc_held = petsc[self.held]
@@ -355,22 +381,20 @@ class Layout:
         return DistributedMatrix(A, self)
 
     def held_values(self, x):
-        """The free vector (serial numbering) with the PETSc vector x's values on this
-        rank's held free dofs (owned ones and ghosts: a scatter of the ghosts' values from
-        their owners) and zeros elsewhere."""
+        """The free vector (this rank's held free dofs) of the PETSc vector x: its owned
+        entries and the ghosts' values scattered from their owners (a copy of the scatter's
+        array)."""
         from petsc4py import PETSc
         self.to_held.scatter(x, self.ghosted, addv=PETSc.InsertMode.INSERT_VALUES,
                              mode=PETSc.ScatterMode.FORWARD)
-        out = np.zeros(self.n)
-        out[self.held] = self.ghosted.getArray(readonly=True)
-        return out
+        return self.ghosted.getArray(readonly=True).copy()
 
     def assembled(self, v):
-        """sum over the ranks of their free vectors v (each nonzero on its held dofs only), on
-        this rank's held dofs: the ghosts' values added to their owners' (a reverse scatter)
-        and sent back, so that every rank holding a dof has the owner's bits."""
+        """sum over the ranks of their free vectors v (held free dofs), on this rank's held
+        dofs: the ghosts' values added to their owners' (a reverse scatter) and sent back, so
+        that every rank holding a dof has the owner's bits."""
         from petsc4py import PETSc
-        self.ghosted.setArray(np.ascontiguousarray(v[self.held], dtype=PETSc.ScalarType))
+        self.ghosted.setArray(np.ascontiguousarray(v, dtype=PETSc.ScalarType))
         self.sum_vector.zeroEntries()
         self.to_held.scatter(self.ghosted, self.sum_vector, addv=PETSc.InsertMode.ADD_VALUES,
                              mode=PETSc.ScatterMode.REVERSE)
@@ -384,9 +408,10 @@ class Layout:
                             addv=PETSc.InsertMode.INSERT_VALUES)
 
     def vector(self, v=None):
-        """A PETSc vector, this rank's entries from the replicated free vector v (or zero)."""
+        """A PETSc vector, this rank's entries from the free vector v (held free dofs: its
+        first `owned` entries; or zero)."""
         x = self.A.createVecRight()
-        x.setArray(np.zeros(x.getLocalSize()) if v is None else v[self.mine])
+        x.setArray(np.zeros(x.getLocalSize()) if v is None else v[:self.owned])
         return x
 
     def gather(self, x):
@@ -401,8 +426,8 @@ class Layout:
 
 
 class DistributedMatrix:
-    """The PETSc Hessian seen by the serial Newton: A @ v on free vectors valid on the held
-    dofs (the product's values there)."""
+    """The PETSc Hessian seen by the serial Newton: A @ v on free vectors (this rank's held
+    free dofs; the product's values there)."""
 
     def __init__(self, mat, layout):
         self.mat, self.layout = mat, layout
@@ -466,7 +491,7 @@ class KrylovSolver:
             return
         from petsc4py import PETSc
         B = np.linalg.qr(near_nullspace(self.dp.local))[0]
-        vectors = [self.dp.layout.vector(b) for b in B.T]
+        vectors = [self.dp.layout.vector(b[self.dp.layout.held]) for b in B.T]
         self.dp.layout.A.setNearNullSpace(PETSc.NullSpace().create(vectors=vectors, comm=self.dp.comm))
 
     def solve(self, A, b, rtol=0.0):

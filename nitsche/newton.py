@@ -38,17 +38,35 @@ def dot(problem, a, b):
     return own(a, b) if own else float(a @ b)
 
 
+def free_part(problem, x):
+    """The free vector of a dof vector x, x[free]: problem.free_part where the problem has
+    its own (a distributed one: the free dofs the rank holds, nitsche.distributed)."""
+    own = getattr(problem, "free_part", None)
+    return own(x) if own else x[problem.free]
+
+
+def with_free(problem, x, v):
+    """A copy of the dof vector x with the free vector v on its free dofs: problem.with_free
+    where the problem has its own (see free_part)."""
+    own = getattr(problem, "with_free", None)
+    if own:
+        return own(x, v)
+    y = x.copy()
+    y[problem.free] = v
+    return y
+
+
 def energy_search(problem, x, dx, E, res, slope):
     """x + step dx, step = 1, 1/2, ... the first with Armijo's decrease of J_h (or, at the full
     step, J_h flat to round-off and the residual smaller); None if 40 halvings fail."""
-    free, xn, step = problem.free, x.copy(), 1.0
+    xf, step = free_part(problem, x), 1.0
     for _ in range(40):
-        xn[free] = x[free] + step * dx
+        xn = with_free(problem, x, xf + step * dx)
         En = problem.energy(xn)
         if np.isfinite(En) and En <= E + 1e-4 * step * slope + 1e-14 * abs(E):
             return step, xn
         if step == 1.0 and np.isfinite(En) and abs(En - E) <= ENERGY_ROUNDOFF * abs(E) \
-                and norm(problem, problem.gradient(xn)[free]) < res:
+                and norm(problem, free_part(problem, problem.gradient(xn))) < res:
             return step, xn  # J_h is flat to round-off here (1/alpha ~ h^-4): judge the step by the residual
         step *= 0.5
     return None
@@ -60,10 +78,10 @@ energy_search.merit = "J_h"
 def residual_search(problem, x, dx, E, res, slope):
     """x + step dx, step = 1, 1/2, ... the first with |r| <= (1 - 1e-4 step) |r(x)| (r the
     residual on the free dofs): (step, x + step dx), None if 40 halvings fail."""
-    free, xn, step = problem.free, x.copy(), 1.0
+    xf, step = free_part(problem, x), 1.0
     for _ in range(40):
-        xn[free] = x[free] + step * dx
-        rn = norm(problem, problem.gradient(xn)[free])
+        xn = with_free(problem, x, xf + step * dx)
+        rn = norm(problem, free_part(problem, problem.gradient(xn)))
         if np.isfinite(rn) and rn <= (1 - 1e-4 * step) * res:
             return step, xn
         step *= 0.5
@@ -133,7 +151,7 @@ def residual_scale(problem, x_ref, rtol):
     (|grad| <= ROUNDOFF * S) converged, e.g. where the terms cancel at x_ref because it
     is the solution (two membranes with d = 0).  None if neither is finite and positive."""
     a = problem.assembler
-    grads = [a.gradient(x_ref, [t])[1][problem.free] for t in a.terms]
+    grads = [free_part(problem, a.gradient(x_ref, [t])[1]) for t in a.terms]
     S = sum(norm(problem, g) for g in grads)
     ref = max(norm(problem, sum(grads)), ROUNDOFF / rtol * S) if grads else 0.0
     return ref if np.isfinite(ref) and ref > 0 else None
@@ -231,8 +249,7 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
     t_start = time.perf_counter()
     c0 = assembly.compile_seconds[0]
     timings = {"assembly": 0.0, "solve": 0.0, "line_search": 0.0, "minimum_check": 0.0}
-    free = problem.free
-    lin = make_solver(solver, free.size, problem.dim, problem.symmetric)
+    lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
     if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
         lin.prepare(problem)
     x = problem.initial(x0)
@@ -246,17 +263,16 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         raise ValueError(f"J_h or its gradient is not finite at the initial guess (J_h = {E0}): "
                          f"{problem.non_finite(x)}; check the densities (log, sqrt, division) "
                          "and the initial guess x0")
-    x_ref = problem.initial(np.zeros(problem.ndofs))
-    x_ref[free] = 0.0
+    x_ref = with_free(problem, problem.initial(np.zeros(problem.ndofs)), 0.0)
     ref = residual_scale(problem, x_ref, rtol)
     if ref is None:  # e.g. a density undefined at zero, or nothing but zeros: scale by x0
-        ref = norm(problem, g0[free]) or 1.0
+        ref = norm(problem, free_part(problem, g0)) or 1.0
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
     shift, shifts = SHIFT_START, []  # inertia correction: the next shift, and those taken
     for it in range(maxiter + 1):
         t = time.perf_counter()
         if getattr(problem, "sliding", None) and problem.update_pairing(x):  # a new matrix structure
-            lin = make_solver(solver, free.size, problem.dim, problem.symmetric)
+            lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
         A = M = None  # the last step's matrices are not held through this assembly
         E, g, A = problem.newton_system(x)
         timings["assembly"] += time.perf_counter() - t
@@ -314,16 +330,15 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             reason = f"the Newton direction is not a descent direction at iteration {it}: {UNBOUNDED}"
             break
         if (not convexified and len(residuals) > 1 and residuals[-1] > 0.5 * residuals[-2]
-                and norm(problem, dx) <= STAGNATION_STEP * max(norm(problem, x[free]), 1e-300)):
+                and norm(problem, dx) <= STAGNATION_STEP * max(norm(problem, free_part(problem, x)), 1e-300)):
             # the residual no longer falls and the step is far below the discretization error:
             # round-off floor (e.g. third-derivative multipliers, alpha ~ h^3, on fine meshes,
             # where J_h itself is only known to ~1e-10 and a line search cannot resolve it)
-            x = x.copy()
-            x[free] += dx
+            x = with_free(problem, x, free_part(problem, x) + dx)
             converged, reason = True, (f"residual stagnated at round-off ({res / ref:.1e}), "
                                        f"Newton step below {STAGNATION_STEP:.0e} of the solution")
             it += 1
-            residuals.append(norm(problem, problem.gradient(x)[free]) / ref)
+            residuals.append(norm(problem, free_part(problem, problem.gradient(x))) / ref)
             break
         t = time.perf_counter()
         search = energy_search if problem.symmetric else residual_search
@@ -335,10 +350,10 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
             break
         timings["line_search"] += time.perf_counter() - t
         step, x = found
-        if not convexified and step == 1.0 and norm(problem, dx) <= 1e-13 * max(norm(problem, x[free]), 1e-300):
+        if not convexified and step == 1.0 and norm(problem, dx) <= 1e-13 * max(norm(problem, free_part(problem, x)), 1e-300):
             converged, reason = True, "full Newton step below round-off"
             it += 1
-            residuals.append(norm(problem, problem.gradient(x)[free]) / ref)
+            residuals.append(norm(problem, free_part(problem, problem.gradient(x))) / ref)
             break
     if shifts and not converged:
         reason += (f" (the Hessian of J_h was not positive definite at {len(shifts)} iterations, "

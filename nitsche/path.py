@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .newton import norm
+from .newton import free_part, norm, with_free
 from .reactions import reactions
 
 COMPONENTS = ("reaction_x", "reaction_y", "reaction_z")
@@ -73,15 +73,14 @@ def predicted(problem, x, before, lin, eps=1e-3):
         problem.set_parameters(**before)
         _, g0, H = problem.newton_system(x)
         problem.set_parameters(**{k: v + eps * (after[k] - v) for k, v in before.items()})
-        g1 = problem.gradient(x)[problem.free]
+        g1 = free_part(problem, problem.gradient(x))
         problem.set_parameters(**after)
-        moved = x.copy()
-        moved[problem.free] += lin.solve(H, -(g1 - g0) / eps, rtol=1e-8)
+        moved = with_free(problem, x, free_part(problem, x) + lin.solve(H, -(g1 - g0) / eps, rtol=1e-8))
     except RuntimeError:  # IndefiniteHessian, NotSolved, a singular factor
         problem.set_parameters(**after)
         return x
     def merit(z):  # J_h, or the residual's norm where J_h has residual terms
-        return problem.energy(z) if problem.symmetric else norm(problem, problem.gradient(z)[problem.free])
+        return problem.energy(z) if problem.symmetric else norm(problem, free_part(problem, problem.gradient(z)))
     with np.errstate(all="ignore"):
         return moved if merit(moved) < merit(x) else x
 

@@ -34,14 +34,14 @@ def main(specs):
         G = whole.gradient(x)
         E, gf, A = dp.newton_system(x)
         H = whole.hessian(x)[free][:, free]
-        Av = A @ np.where(np.isin(np.arange(free.size), held), v, np.nan)  # only held entries read
+        Av = A @ v[held]  # free vectors: the held free dofs, owned first
         row = dict(gradient=relative(g[free][held], G[free][held]),
                    gradient_fixed=relative(g[fixed], G[fixed]),
-                   newton_gradient=relative(gf[held], G[free][held]),
+                   newton_gradient=relative(gf, G[free][held]),
                    energy=abs(E - whole.energy(x)) / abs(whole.energy(x)),
-                   product=relative(Av[held], (H @ v)[held]),
-                   norm=abs(dp.norm(v) - np.linalg.norm(v)) / np.linalg.norm(v),
-                   dot=abs(dp.dot(v, w) - v @ w) / (np.linalg.norm(v) * np.linalg.norm(w)),
+                   product=relative(Av, (H @ v)[held]),
+                   norm=abs(dp.norm(v[held]) - np.linalg.norm(v)) / np.linalg.norm(v),
+                   dot=abs(dp.dot(v[held], w[held]) - v @ w) / (np.linalg.norm(v) * np.linalg.norm(w)),
                    held=int(held.size), owned=int(dp.layout.mine.size), free=int(free.size),
                    fixed=int(fixed.size),
                    summed_per_gradient=int(summed))

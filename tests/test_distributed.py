@@ -8,7 +8,8 @@ serial convexified steps; the minimum check runs on distributed vectors (fails a
 passes at minima, gathers nothing); the errors, reports, figures' values and solution.png's
 pictures computed from the ranks' pieces equal the whole problem's (also along the load
 paths of compression and indentation, and friction's solve hook); alpha0's order
-statistics are exact without gathering; PETSc holds no more after each Newton step.
+statistics are exact without gathering; PETSc holds no more after each Newton step; the
+free vectors newton is handed have the length of the rank's held free dofs.
 Skipped without petsc4py / mpirun (installed by `make petsc`)."""
 import json
 import os
@@ -392,3 +393,25 @@ def test_petsc_holds_no_more_after_each_newton_step(ranks):
     assert r["ranks"] == ranks and len(r["petsc_bytes"]) == ranks
     for held in r["petsc_bytes"]:
         assert held[1] > 0 and held[1:] == [held[1]] * (len(held) - 1), held
+
+
+@pytest.mark.parametrize("ranks", [2, 3])
+def test_newton_takes_free_vectors_of_the_held_dofs_only(ranks, reference):
+    """Every free vector the distributed problem hands newton (the Newton gradient, each
+    step, each product A v, each free_part) has the length of the rank's held free dofs,
+    fewer than the free dofs; the local numbering is the Layout's (owned dofs first, in
+    PETSc's order, then ghosts another rank owns, each once); the energies and Newton
+    iterations are the serial ones."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_held.py"), "obstacle:3", "elastic-contact:2")
+    for case in map(json.loads, lines.strip().splitlines()):
+        serial = reference[case["case"]]
+        assert case["converged"] and case["iterations"] == serial["iterations"], case
+        assert abs(case["energy"] - serial["energy"]) <= 1e-10 * abs(serial["energy"]), case
+        rows = case["ranks"]
+        assert len(rows) == ranks and sum(r["owned"] for r in rows) == rows[0]["free"]
+        for r in rows:
+            assert r["lengths"] == {k: [r["held"]] for k in
+                                    ("newton gradient", "step", "product", "free_part")}, r
+            assert r["owned"] <= r["held"] < r["free"], r
+            assert r["owned_in_petsc_order"] and r["ghosts_of_other_ranks"], r
+            assert r["distinct"] and r["dofs"], r
