@@ -46,7 +46,7 @@ def run(code, args, out):
                "--overwrite"]
     env = dict(os.environ, PYTHONPATH=code, OPENBLAS_NUM_THREADS="1")
     load, t = os.getloadavg()[0], time.perf_counter()
-    proc = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL)
+    proc = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, cwd=code)  # -m puts cwd first
     _, status, usage = os.wait4(proc.pid, 0)
     if status != 0:
         raise RuntimeError(f"{' '.join(command)} failed (status {status})")
