@@ -3,7 +3,7 @@ import weakref
 from functools import cached_property
 
 import numpy as np
-from skfem import Basis, CellBasis, ElementTriP1, ElementVector
+from skfem import Basis, CellBasis, ElementTetP1, ElementTriP1, ElementVector
 from skfem.assembly.basis.abstract_basis import AbstractBasis
 from skfem.quadrature import get_quadrature
 from skfem.element import ElementH1
@@ -235,9 +235,9 @@ class Field:
         if not (self.is_lagrange and coarse.is_lagrange):
             return self._prolongate_by_dofs(coarse, u)
         pairs = self._midpoint_pairs(coarse)
-        if pairs is not None:  # P1 on a refined triangle mesh: no point location
+        if pairs is not None:  # P1 on nested simplices: no point location
             v = np.asarray(u, dtype=float).reshape(coarse.mesh.p.shape[1], -1)  # (vertices, components)
-            return np.concatenate([v, 0.5 * (v[pairs[0]] + v[pairs[1]])]).ravel()
+            return (0.5 * (v[pairs[0]] + v[pairs[1]])).ravel()
         values = probes(coarse.dof_basis, self.dof_basis.doflocs, outside="nearest") @ u
         if isinstance(self.element, ElementVector):  # rows component-major, dofs interleaved
             j = np.arange(self.ndofs)
@@ -245,23 +245,27 @@ class Field:
         return values
 
     def _midpoint_pairs(self, coarse):
-        """The coarse vertex pairs (2, m) whose midpoints are this field's further dofs when
-        both fields are P1 (scalar or vector, dofs numbered by vertex) on triangle meshes and
-        this mesh is the coarse one refined by scikit-fem (Mesh.refined: the coarse vertices,
-        then the midpoints of its facets, in facet order); None otherwise.  There the nodal
-        interpolant of the coarse function is its vertex values followed by the means
-        (u_a + u_b) / 2 over the facets (a, b)."""
+        """The coarse vertex pairs (2, N), one per vertex of this mesh, whose midpoints are
+        these vertices (a coarse vertex i: the pair (i, i)), when both fields are P1 (scalar
+        or vector, dofs numbered by vertex) on triangles or on tetrahedra and every vertex of
+        this mesh is a coarse vertex or the midpoint of a coarse edge: this mesh refined by
+        scikit-fem (Mesh.refined: the coarse vertices, then the midpoints of the edges, in
+        edge order), or matched by coordinates (`midpoint_pairs`, e.g. tensor grids of
+        n and 2n cells per side); None otherwise.  There the nodal interpolant of the coarse
+        function u is (u_a + u_b) / 2 (a P1 function is linear along each edge)."""
         fine, mesh = self.mesh, coarse.mesh
-        if not (type(fine).__name__ == type(mesh).__name__ == "MeshTri1" and
+        if not (type(fine).__name__ == type(mesh).__name__ in ("MeshTri1", "MeshTet1") and
                 all(vertex_numbered(f) for f in (self, coarse)) and
                 type(self.element) is type(coarse.element)):
             return None
         n = mesh.p.shape[1]
-        build_facets(mesh)
-        if fine.p.shape[1] != n + mesh.facets.shape[1] or not np.array_equal(fine.p[:, :n], mesh.p) \
-                or not np.array_equal(fine.p[:, n:], mesh.p[:, mesh.facets].mean(axis=1)):
-            return None
-        return mesh.facets
+        if mesh.dim() == 2:
+            build_facets(mesh)
+        edges = mesh.facets if mesh.dim() == 2 else mesh.edges
+        if fine.p.shape[1] == n + edges.shape[1] and np.array_equal(fine.p[:, :n], mesh.p) \
+                and np.array_equal(fine.p[:, n:], mesh.p[:, edges].mean(axis=1)):
+            return np.concatenate([np.tile(np.arange(n), (2, 1)), edges], axis=1)
+        return midpoint_pairs(fine.p, mesh.p, edges)
 
     # -- Hermite-type elements (BFS, Morley): dofs are derivatives at points ---------
     HERMITE_DOFS = ("u", "u_x", "u_y", "u_xy", "u_n")
@@ -330,12 +334,23 @@ class Field:
         return out
 
 
+def midpoint_pairs(x, p, edges, rtol=1e-10):
+    """For each point of x (dim, N): the pair (i, i) where it is the vertex p_i, (a, b) where
+    it is the midpoint of the edge (a, b) of `edges` (2, m), to rtol of the extent of p;
+    None if a point is neither."""
+    from scipy.spatial import cKDTree
+    pairs = np.concatenate([np.tile(np.arange(p.shape[1]), (2, 1)), edges], axis=1)
+    distance, i = cKDTree((0.5 * (p[:, pairs[0]] + p[:, pairs[1]])).T).query(
+        x.T, distance_upper_bound=rtol * np.ptp(p, axis=1).max())
+    return pairs[:, i] if np.all(np.isfinite(distance)) else None
+
+
 def vertex_numbered(field):
-    """Whether the field is P1 on triangles (scalar or vector) with the dofs of vertex i
-    numbered i d .. i d + d - 1 (d components)."""
+    """Whether the field is P1 on triangles or tetrahedra (scalar or vector) with the dofs of
+    vertex i numbered i d .. i d + d - 1 (d components)."""
     e = field.element.elem if isinstance(field.element, ElementVector) else field.element
     nodal = field.dof_basis.nodal_dofs
-    return type(e) is ElementTriP1 and field.ndofs == nodal.size == field.mesh.p.shape[1] * nodal.shape[0] \
+    return type(e) in (ElementTriP1, ElementTetP1) and field.ndofs == nodal.size == field.mesh.p.shape[1] * nodal.shape[0] \
         and np.array_equal(nodal.T.ravel(), np.arange(field.ndofs))
 
 

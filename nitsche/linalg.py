@@ -210,10 +210,12 @@ class AMGCG:
     With `prepare(problem)` the near-nullspace of the aggregation is the rigid-body
     modes of every vector field and the constants of every scalar field (free dofs),
     which makes elasticity converge in a few iterations.  The hierarchy is reused
-    across Newton steps (the Hessians differ only on the active contact set): CG with
-    it may take at most rebuild_factor * rate * d + slack iterations for d decades of
-    residual reduction, rate the iterations per decade of the first whole solve with
-    the current hierarchy; past that limit the hierarchy is built on the new matrix and
+    across Newton steps (the Hessians differ only on the active contact set): its finest
+    level is set to each new matrix (`refresh`: S A S with the build's S; P, R and the
+    coarser levels kept), and CG with it may take at most rebuild_factor * rate * d + slack
+    iterations for d decades of residual reduction, rate the iterations per decade of the
+    first whole solve with the current hierarchy, slack about one set-up's cost in CG
+    iterations; past that limit the hierarchy is built on the new matrix and
     CG goes on from where it stopped (the next solve then measures rate: the few
     iterations that finish a solve do not).
 
@@ -243,13 +245,15 @@ class AMGCG:
                     smooth=[("richardson", {"omega": 4.0 / 3.0}), ("jacobi", {"omega": 4.0 / 3.0})],
                     presmoother=AMGCG.SMOOTHER, postsmoother=AMGCG.SMOOTHER)
 
-    def __init__(self, rtol=1e-10, maxiter=2000, rebuild_factor=2.0, slack=2, pyamg_options=None,
+    def __init__(self, rtol=1e-10, maxiter=2000, rebuild_factor=2.0, slack=20, pyamg_options=None,
                  dtype=np.float32):
-        # a new hierarchy costs about 30 CG iterations (3D elasticity, 200k unknowns: 2.8 s
-        # against 0.1 s CPU per iteration), a stale one several times its iterations
+        # a new hierarchy costs about 25 CG iterations (3D elasticity, P1 tetrahedra: 2.8 s
+        # against 0.11 s CPU per iteration at 203k unknowns, 20.7 s against 0.78 s at 1.16M);
+        # a refreshed one took a new one's iterations on the later Newton matrices at 203k
+        # (3, 4, 5, 8, 19), at 1.16M 67 in all against 58 with a second set-up
         self.rtol, self.maxiter, self.rebuild_factor, self.slack = rtol, maxiter, rebuild_factor, slack
         self.pyamg_options, self.dtype = pyamg_options, np.dtype(dtype)  # pyamg_options None: options()
-        self.B, self.ml, self.rate = None, None, None
+        self.B, self.ml, self.rate, self.s = None, None, None, None
         self.iterations, self.setups = [], 0
 
     def prepare(self, problem):
@@ -269,6 +273,7 @@ class AMGCG:
         B = self.B if self.B is not None and self.B.shape[0] == A.shape[0] else np.ones((A.shape[0], 1))
         self.ml = pyamg.smoothed_aggregation_solver(scaled, B=B / s[:, None], **options)
         del scaled
+        self.s = s
         in_precision(self.ml, self.dtype, options.get("presmoother", self.SMOOTHER),
                      options.get("postsmoother", self.SMOOTHER))
         ml, dtype = self.ml, self.dtype
@@ -276,6 +281,18 @@ class AMGCG:
                                      dtype=np.float64)
         self.rate = None
         self.setups += 1
+
+    def refresh(self, A):
+        """The hierarchy's finest level set to S A S in its precision, S = diag(A_0)^-1/2 of
+        the matrix A_0 it was built on (its smoother, Gauss-Seidel on a CSR level, reads the
+        level's matrix at each sweep; P, R and the coarser levels are kept): M r = S V(S r) stays symmetric positive
+        definite for a positive definite A, and its smoothing is that of A itself where A
+        differs from A_0 (the contact's rows)."""
+        from pyamg.util.utils import scale_columns, scale_rows
+        scaled = scale_columns(scale_rows(type(A)((A.data.copy(), A.indices, A.indptr), shape=A.shape),
+                                          self.s, copy=False), self.s, copy=False)
+        self.ml.levels[0].A = type(A)((scaled.data.astype(self.dtype), A.indices, A.indptr),
+                                      shape=A.shape)
 
     def _cg(self, A, b, tol, x0=None, maxiter=None):
         count = [0]
@@ -294,6 +311,8 @@ class AMGCG:
             return False
         if self.ml is None or self.ml.levels[0].A.shape != A.shape:
             self._build(A)
+        else:
+            self.refresh(A)
         return bool(lowest_eigenvalue(A, self.M, iterations) > 0)
 
     def solve(self, A, b, rtol=0.0):
@@ -305,6 +324,7 @@ class AMGCG:
         if self.ml is not None and self.ml.levels[0].A.shape == A.shape:
             limit = (int(self.rebuild_factor * self.rate * decades) + self.slack
                      if self.rate is not None else self.maxiter)  # (built by is_positive_definite or midway)
+            self.refresh(A)
             x, info, its = self._cg(A, b, tol, maxiter=limit)
             stale = info != 0
         if x is None or stale:  # no hierarchy yet, or a stale one: build on A, go on from x

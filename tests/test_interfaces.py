@@ -320,6 +320,30 @@ def test_prolongation_to_a_refined_triangle_mesh_by_facet_midpoints(element):
     assert np.allclose(values, linear(moved.dof_basis.doflocs), atol=1e-13)
 
 
+@pytest.mark.parametrize("mesh, element", [(MeshTet, ElementVector(ElementTetP1())), (MeshTet, ElementTetP1()),
+                                           (MeshTri, ElementTriP1())])
+def test_prolongation_between_tensor_grids_by_edge_midpoints(mesh, element):
+    """P1 on the tensor grids of n and 2n cells per side (generated, not refined: another
+    numbering): every fine vertex is a coarse vertex or the midpoint of a coarse edge, found
+    by coordinates, and the prolongation by those pairs equals point location (probes) to
+    round-off; a fine vertex moved off its midpoint takes point location."""
+    from nitsche.locate import probes
+    grid = lambda n: mesh.init_tensor(*[np.linspace(0, 1, n + 1)] * (3 if mesh is MeshTet else 2))  # noqa: E731
+    fc, ff = ni.Field("u", grid(3), element), ni.Field("u", grid(6), element)
+    assert ff._midpoint_pairs(fc) is not None
+    u = np.random.default_rng(5).normal(size=fc.ndofs)
+    by_location = probes(fc.dof_basis, ff.dof_basis.doflocs) @ u
+    d = ff.ndofs // ff.mesh.p.shape[1]
+    j = np.arange(ff.ndofs)
+    assert np.abs(ff.prolongate(fc, u) - by_location.reshape(d, -1)[j % d, j]).max() <= 1e-13 * np.abs(u).max()
+    p = ff.mesh.p.copy()
+    p[:, np.argmin(np.abs(p - 0.5 - 1 / 12).sum(axis=0))] += 0.01  # an interior vertex off its midpoint
+    moved = ni.Field("u", type(ff.mesh)(p, ff.mesh.t), element)
+    assert moved._midpoint_pairs(fc) is None
+    assert np.allclose(moved.prolongate(fc, u), (probes(fc.dof_basis, moved.dof_basis.doflocs) @ u)
+                       .reshape(d, -1)[j % d, j], atol=1e-13)
+
+
 def test_refined_with_the_fast_facets_is_scikit_fems_refinement():
     """nitsche.meshes.refined gives the same vertices, cells, facets and t2f as
     scikit-fem's Mesh.refined (its steps read the facets built by build_facets)."""
