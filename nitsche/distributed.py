@@ -18,6 +18,10 @@ divided among the ranks; the meshes stay whole on every rank.
 - the Hessian on the free dofs is a PETSc AIJ matrix: its COO pattern (each rank's
   free-free entries, those of rows another rank owns included) is set once per mesh, its
   values each step; the Newton systems are solved by a PETSc KSP;
+- an interface paired in the current configuration (nitsche.sliding) is paired on each
+  rank for its own points; the rank holds the dofs of the other body's cells along the
+  surface (ghosts: the current surface and any cell a pairing reaches), and a pairing that
+  grows a rank's pattern gives every rank a new PETSc matrix on the grown one;
 - the whole free vector is all-gathered for the result (once per solve); the minimum check
   at convergence is LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the
   preconditioner and reductions of a few numbers); the constraint report is the serial
@@ -161,7 +165,7 @@ class DistributedProblem:
         from mpi4py import MPI
         grew = self.comm.allreduce(bool(self.local.update_pairing(x)), op=MPI.LOR)
         if grew:
-            self.layout.grown(self.local.assembler)
+            self.layout.grown(self.local)
         return grew
 
     def linear_solver(self, name="auto"):
@@ -332,9 +336,7 @@ class Layout:
         self.start = int(self.counts[:dp.rank].sum())
         self.mine = self.order[self.start: self.start + self.counts[dp.rank]]
         self.n, self.comm = problem.free.size, dp.comm
-        self.number = -np.ones(problem.ndofs, np.int64)
-        self.number[problem.free[self.order]] = np.arange(self.n)
-        self.pattern = self.coo(a)  # given to PETSc once (matrix), then dropped
+        self.pattern = self.coo(problem)  # given to PETSc once (matrix), then dropped
         self.owner = owner
         self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
         self.unshifted = None  # the assembled diagonal while a shift is applied
@@ -343,23 +345,26 @@ class Layout:
         petsc[self.order] = np.arange(self.n)
         self.petsc_held = petsc[self.held]
 
-    def coo(self, a):
-        """(rows, cols) in PETSc's numbering of the free-free entries of the assembler a's
+    def coo(self, problem):
+        """(rows, cols) in PETSc's numbering of the free-free entries of the rank's problem's
         CSR pattern (keep: their positions in its data; off_rank: those in other ranks' rows)."""
-        rows = self.number[np.repeat(np.arange(a.indptr.size - 1), np.diff(a.indptr))]
-        cols = self.number[a.indices]
+        a = problem.assembler
+        number = -np.ones(problem.ndofs, np.int64)
+        number[problem.free[self.order]] = np.arange(self.n)
+        rows = number[np.repeat(np.arange(problem.ndofs), np.diff(a.indptr))]
+        cols = number[a.indices]
         self.keep = np.flatnonzero((rows >= 0) & (cols >= 0))
         rows, cols = rows[self.keep], cols[self.keep]
         lo, hi = self.start, self.start + self.counts[self.comm.rank]
         self.off_rank = int(((rows < lo) | (rows >= hi)).sum())  # rows of other ranks
         return rows, cols
 
-    def grown(self, a):
-        """A new PETSc matrix (A; its near-nullspace kept) on the assembler a's grown pattern
-        (an interface paired anew, nitsche.sliding; collective): the held dofs, and hence the
-        owners and the vectors, stay (they hold every dof a pairing can reach)."""
+    def grown(self, problem):
+        """A new PETSc matrix (A; its near-nullspace kept) on the rank's problem's grown
+        pattern (an interface paired anew, nitsche.sliding; collective): the held dofs, and
+        hence the owners and the vectors, stay (they hold every dof a pairing can reach)."""
         space = self.A.getNearNullSpace()
-        self.pattern, self.unshifted = self.coo(a), None
+        self.pattern, self.unshifted = self.coo(problem), None
         self.A.destroy()
         self.A = self.petsc_matrix()
         if space.handle:
