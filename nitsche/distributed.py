@@ -516,7 +516,9 @@ class KrylovSolver:
     def solve(self, A, b, rtol=0.0):
         from petsc4py import PETSc
         self.ksp.setOperators(self.dp.layout.A)  # (a new one where a pairing grew the pattern)
-        fault = diagonal_fault(self.dp.layout.A)
+        # a symmetric problem's matrix must be positive definite (as CHOLMOD's serially); a
+        # non-symmetric one's (residual terms) is solved by LU whatever its diagonal, as SuperLU's
+        fault = diagonal_fault(self.dp.layout.A) if self.dp.local.symmetric else None
         if fault:
             raise IndefiniteHessian(fault)
         if self.kind == "gamg":
