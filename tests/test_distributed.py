@@ -7,8 +7,9 @@ per rank (together every cell once, with the serial values); the ghosted free ve
 serial convexified steps; the minimum check runs on distributed vectors (fails at a saddle,
 passes at minima, gathers nothing); the errors, reports, figures' values and solution.png's
 pictures computed from the ranks' pieces equal the whole problem's (also along the load
-paths of compression, indentation and ironing (their steps and iterations the serial ones), and friction's solve hook); alpha0's order
-statistics are exact without gathering; PETSc holds no more after each Newton step.
+paths of compression, indentation and ironing, whose steps and iterations are the serial
+ones, and friction's solve hook); alpha0's order statistics are exact without gathering;
+PETSc holds no more after each Newton step.
 Skipped without petsc4py / mpirun (installed by `make petsc`)."""
 import json
 import os
