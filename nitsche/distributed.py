@@ -21,6 +21,10 @@ divided among the ranks; the meshes stay whole on every rank.
 - the Hessian on the free dofs is a PETSc AIJ matrix: its COO pattern (each rank's
   free-free entries, those of rows another rank owns included) is set once per mesh, its
   values each step; the Newton systems are solved by a PETSc KSP;
+- an interface paired in the current configuration (nitsche.sliding) is paired on each
+  rank for its own points; the rank holds the dofs of the other body's cells along the
+  surface (ghosts: the current surface and any cell a pairing reaches), and a pairing that
+  grows a rank's pattern gives every rank a new PETSc matrix on the grown one;
 - the whole free vector is all-gathered for the result (once per solve); the minimum check
   at convergence is LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the
   preconditioner and reductions of a few numbers); the constraint report is the serial
@@ -172,6 +176,16 @@ class DistributedProblem:
         E, g, data = self.assembler.evaluate(x)
         self.layout.set_values(data)
         return E, self.free_part(g), self.matrix
+
+    def update_pairing(self, x):
+        """Problem.update_pairing of this rank's interface points (each rank pairs its own
+        against the other body's current surface, whose dofs it holds: Layout); True on
+        every rank where one rank's pattern grew, the PETSc matrix then on the grown one."""
+        from mpi4py import MPI
+        grew = self.comm.allreduce(bool(self.local.update_pairing(x)), op=MPI.LOR)
+        if grew:
+            self.layout.grown(self.local)
+        return grew
 
     def linear_solver(self, name="auto"):
         """A PETSc solver of the Newton matrix (KrylovSolver): a load path's predictor."""
@@ -334,6 +348,9 @@ class Layout:
         held = np.zeros(problem.ndofs, bool)
         for t in a.terms:
             held[t.global_dofs.ravel()] = True
+            if t.nel and hasattr(t.measure, "reachable"):  # paired anew each iterate (nitsche.sliding)
+                for f, offset in zip(t.fields, t.offsets):
+                    held[t.measure.reachable(f) + offset] = True
         owner = np.where(held, dp.rank, dp.ranks - 1).astype(np.int64)
         dp.comm.Allreduce(MPI.IN_PLACE, owner, op=MPI.MIN)
         free_owner = owner[problem.free]
@@ -342,15 +359,7 @@ class Layout:
         self.start = int(self.counts[:dp.rank].sum())
         self.mine = self.order[self.start: self.start + self.counts[dp.rank]]
         self.n, self.comm = problem.free.size, dp.comm
-        number = -np.ones(problem.ndofs, np.int64)
-        number[problem.free[self.order]] = np.arange(self.n)
-        rows = number[np.repeat(np.arange(problem.ndofs), np.diff(a.indptr))]
-        cols = number[a.indices]
-        self.keep = np.flatnonzero((rows >= 0) & (cols >= 0))
-        rows, cols = rows[self.keep], cols[self.keep]
-        lo, hi = self.start, self.start + self.counts[dp.rank]
-        self.off_rank = int(((rows < lo) | (rows >= hi)).sum())  # rows of other ranks
-        self.pattern = (rows, cols)  # given to PETSc once (matrix), then dropped
+        self.pattern = self.coo(problem)  # given to PETSc once (matrix), then dropped
         self.owner = owner
         self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
         self.unshifted = None  # the assembled diagonal while a shift is applied
@@ -362,8 +371,33 @@ class Layout:
         petsc[self.order] = np.arange(self.n)
         self.petsc_held = petsc[self.held]
 
-    def matrix(self):
-        """The PETSc matrix, its pattern set once (values: set_values)."""
+    def coo(self, problem):
+        """(rows, cols) in PETSc's numbering of the free-free entries of the rank's problem's
+        CSR pattern (keep: their positions in its data; off_rank: those in other ranks' rows)."""
+        a = problem.assembler
+        number = -np.ones(problem.ndofs, np.int64)
+        number[problem.free[self.order]] = np.arange(self.n)
+        rows = number[np.repeat(np.arange(problem.ndofs), np.diff(a.indptr))]
+        cols = number[a.indices]
+        self.keep = np.flatnonzero((rows >= 0) & (cols >= 0))
+        rows, cols = rows[self.keep], cols[self.keep]
+        lo, hi = self.start, self.start + self.counts[self.comm.rank]
+        self.off_rank = int(((rows < lo) | (rows >= hi)).sum())  # rows of other ranks
+        return rows, cols
+
+    def grown(self, problem):
+        """A new PETSc matrix (A; its near-nullspace kept) on the rank's problem's grown
+        pattern (an interface paired anew, nitsche.sliding; collective): the held dofs, and
+        hence the owners and the vectors, stay (they hold every dof a pairing can reach)."""
+        space = self.A.getNearNullSpace()
+        self.pattern, self.unshifted = self.coo(problem), None
+        self.A.destroy()
+        self.A = self.petsc_matrix()
+        if space.handle:
+            self.A.setNearNullSpace(space)
+
+    def petsc_matrix(self):
+        """The PETSc AIJ matrix of the COO pattern (which is then dropped)."""
         from petsc4py import PETSc
         local = int(self.counts[self.comm.rank])
         A = PETSc.Mat().create(comm=self.comm)
@@ -372,13 +406,19 @@ class Layout:
         rows, cols = self.pattern
         self.pattern = None
         A.setPreallocationCOO(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType))
-        self.A = A
+        return A
+
+    def matrix(self):
+        """The PETSc matrix, its pattern set once (values: set_values; a pattern grown by a
+        new pairing: grown)."""
+        from petsc4py import PETSc
+        self.A = A = self.petsc_matrix()
         self.ghosted = PETSc.Vec().createSeq(self.held.size, comm=PETSc.COMM_SELF)
         self.to_held = PETSc.Scatter().create(
             A.createVecRight(), PETSc.IS().createGeneral(self.petsc_held.astype(PETSc.IntType),
                                                        comm=PETSc.COMM_SELF), self.ghosted, None)
         self.sum_vector = A.createVecRight()
-        return DistributedMatrix(A, self)
+        return DistributedMatrix(self)
 
     def held_values(self, x):
         """The free vector (this rank's held free dofs) of the PETSc vector x: its owned
@@ -429,8 +469,12 @@ class DistributedMatrix:
     """The PETSc Hessian seen by the serial Newton: A @ v on free vectors (this rank's held
     free dofs; the product's values there)."""
 
-    def __init__(self, mat, layout):
-        self.mat, self.layout = mat, layout
+    def __init__(self, layout):
+        self.layout = layout
+
+    @property
+    def mat(self):
+        return self.layout.A
 
     def __matmul__(self, v):
         y = self.layout.vector()
@@ -496,7 +540,10 @@ class KrylovSolver:
 
     def solve(self, A, b, rtol=0.0):
         from petsc4py import PETSc
-        fault = diagonal_fault(self.dp.layout.A)
+        self.ksp.setOperators(self.dp.layout.A)  # (a new one where a pairing grew the pattern)
+        # a symmetric problem's matrix must be positive definite (as CHOLMOD's serially); a
+        # non-symmetric one's (residual terms) is solved by LU whatever its diagonal, as SuperLU's
+        fault = diagonal_fault(self.dp.layout.A) if self.dp.local.symmetric else None
         if fault:
             raise IndefiniteHessian(fault)
         if self.kind == "gamg":
@@ -525,6 +572,7 @@ class KrylovSolver:
         of ranks.  Nothing is gathered."""
         if diagonal_fault(A.mat):
             return False
+        self.ksp.setOperators(A.mat)
         self.ksp.setUp()
         x = self.dp.layout.vector()
         x.setArray(seeded(self.dp.layout.mine))

@@ -56,7 +56,8 @@ class Sliding(Interface):
         self.shape = X.shape[1:]
         self.X_s = X.reshape(X.shape[0], -1).T
         cells = np.repeat(np.asarray(base.cells)[:, None], self.shape[1], axis=1)
-        self._own = (tabulate_at(mine, [0], cells, X), mine.basis.element_dofs[:, cells])
+        # (the cells' numbers are the whole mesh's: the dof numbering, not a rank's basis)
+        self._own = (tabulate_at(mine, [0], cells, X), mine.dof_basis.dofs.element_dofs[:, cells])
         self.pairings = 0
         self.pair(np.zeros(mine.ndofs), np.zeros(other.ndofs))
 
@@ -71,7 +72,7 @@ class Sliding(Interface):
         3D (nitsche.projection), a point keeping its facet while its unclipped projection
         lies within the hysteresis of it."""
         p = self.other.mesh.p
-        current = (p + u2[self.other.basis.nodal_dofs]).T[self.segments]  # (S, vertices, dim)
+        current = (p + u2[self.other.dof_basis.nodal_dofs]).T[self.segments]  # (S, vertices, dim)
         self.facet, self.eta = closest_facets(self.current_points(u1), current,
                                               getattr(self, "facet", None), self.hysteresis)
         N, _ = shape_functions(self.segments.shape[1], self.eta)
@@ -109,6 +110,15 @@ class Sliding(Interface):
             return super().shapes(field, orders)
         dim = self.other.mesh.dim()
         return [(dim, dim - 1) + (dim,) * o for o in orders]
+
+    def reachable(self, field):
+        """The dofs of a field on the other body that this interface's elements can hold
+        under any pairing: those of its cells along `onto` (none of a field on this body:
+        the elements keep those of their own cells); a distributed problem holds them all
+        (nitsche.distributed.Layout)."""
+        if field.mesh is self.mesh:
+            return np.zeros(0, np.int64)
+        return field.dof_basis.dofs.element_dofs[:, self.segment_cells].ravel()
 
     def other_points(self, field):
         return self.X_m

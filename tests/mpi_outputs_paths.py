@@ -10,7 +10,10 @@ computes them again on the whole problem rebuilt with the path's steps
 (nitsche.commands.whole, what `nitsche run` did before the case declared
 OUTPUTS_FROM_PIECES).  Rank 0 prints one JSON line per case: both errors, the largest
 relative differences of the report hooks' numbers (seconds left out), of the values the
-figures draw (FIGURE_DATA) and of the multiplier pictures, and the figures each wrote."""
+figures draw (FIGURE_DATA) and of the multiplier pictures, the figures each wrote, a load
+path's steps (time, Newton iterations, energy, cuts: for the serial path's) and whether a
+pairing in the current configuration grew a rank's Hessian pattern (ironing).  The whole
+problem of such a pairing is paired at the solution, as the ranks' parts are."""
 import json
 import os
 import sys
@@ -35,7 +38,9 @@ def main(specs):
         p = case.parameters(dict(kv.split("=") for s in sets for kv in s.split(",")))
         degree = case.degrees[0]
         dp = DistributedProblem.build(lambda: case.problem(int(level), degree, p))
+        entries = dp.local.assembler.nnz
         solved = case.solve(dp, None)  # (solver auto, as `nitsche run`)
+        grew = dp.comm.allreduce(dp.local.assembler.nnz > entries)
         folder = tempfile.mkdtemp() if dp.rank == 0 else None
         hook = getattr(case.module, "figures", lambda *a: [])
         report = getattr(case.module, "report", lambda *a: {})
@@ -51,6 +56,7 @@ def main(specs):
         if dp.rank > 0:
             continue
         whole, serial = commands.whole(case, dp, solved, degree, p)
+        whole.update_pairing(serial.x)
         os.makedirs(os.path.join(folder, "whole"))
         whole_errors = case.errors(whole, serial, p)
         whole_report = report(whole, serial, p)
@@ -60,6 +66,8 @@ def main(specs):
         print(json.dumps(dict(
             case=name, converged=bool(solved.converged), errors=errors, serial_errors=whole_errors,
             steps=len(getattr(dp, "path", None).steps) if hasattr(dp, "path") else None,
+            path=[[s["time"], s["iterations"], s["energy"], s["cuts"]] for s in dp.path.steps]
+            if hasattr(dp, "path") else None, pattern_grew=bool(grew),
             pictures={c: pictures[c][0] for c in pictures},
             picture_differences={c: difference(pictures[c], multiplier_picture(values[c]))
                                  for c in values},

@@ -7,9 +7,10 @@ per rank (together every cell once, with the serial values); the ghosted free ve
 serial convexified steps; the minimum check runs on distributed vectors (fails at a saddle,
 passes at minima, gathers nothing); the errors, reports, figures' values and solution.png's
 pictures computed from the ranks' pieces equal the whole problem's (also along the load
-paths of compression and indentation, and friction's solve hook); alpha0's order
-statistics are exact without gathering; PETSc holds no more after each Newton step; the
-free vectors newton is handed have the length of the rank's held free dofs.
+paths of compression, indentation and ironing, whose steps and iterations are the serial
+ones, and friction's solve hook); alpha0's order statistics are exact without gathering;
+PETSc holds no more after each Newton step; the free vectors newton is handed have the
+length of the rank's held free dofs.
 Skipped without petsc4py / mpirun (installed by `make petsc`)."""
 import json
 import os
@@ -347,17 +348,40 @@ def test_outputs_from_pieces_equal_the_whole_problems(ranks):
     assert figures["plate-unilateral"] == ["plate_unilateral.png"], figures
 
 
+PATHS = ["compression:0:steps=2", "indentation:0:steps=2", "friction:0",
+         "ironing:0:steps_down=1,depth=0.5"]
+SERIAL_PATHS = ("indentation", "ironing")  # their steps' energies and iterations against serial
+
+
+@pytest.fixture(scope="module")
+def serial_paths():
+    """The serial load paths of SERIAL_PATHS (SuperLU: an exact solve, as PETSc's LU):
+    [time, Newton iterations, energy, cuts] per accepted step."""
+    out = {}
+    for spec in PATHS:
+        name, level, *sets = spec.split(":")
+        if name in SERIAL_PATHS:
+            case = cases.get(name)
+            p = case.parameters(dict(kv.split("=") for s in sets for kv in s.split(",")))
+            problem = case.problem(int(level), case.degrees[0], p)
+            case.solve(problem, None, solver="superlu")
+            out[name] = [[s["time"], s["iterations"], s["energy"], s["cuts"]] for s in problem.path.steps]
+    return out
+
+
 @pytest.mark.parametrize("ranks", [1, 2, 3])
-def test_load_path_outputs_from_pieces_equal_the_whole_problems(ranks):
+def test_load_path_outputs_from_pieces_equal_the_whole_problems(ranks, serial_paths):
     """The load-path cases (and friction's solve hook) solved on the ranks as `nitsche run`
     solves them: what their hooks compute from the ranks' parts (the contact force per step
     summed over the ranks' facets, friction's loads summed and its interface line gathered,
-    compression's path records) equals what they compute on the whole problem rebuilt with the
-    path's steps, to 1e-12, and every figure is written."""
-    specs = ["compression:0:steps=2", "indentation:0:steps=2", "friction:0"]
-    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_outputs_paths.py"), *specs)
+    compression's and ironing's path records) equals what they compute on the whole problem
+    rebuilt with the path's steps, to 1e-12, and every figure is written.  Indentation's and
+    ironing's paths (ironing: both bodies paired in the current configuration, the pattern
+    grown by new pairings) take the serial steps, Newton iterations and cuts, their energies
+    to 1e-10 relative."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_outputs_paths.py"), *PATHS)
     runs = [json.loads(line) for line in lines.strip().splitlines() if line.startswith("{")]
-    assert [r["case"] for r in runs] == [s.split(":")[0] for s in specs]
+    assert [r["case"] for r in runs] == [s.split(":")[0] for s in PATHS]
     for r in runs:
         assert cases.get(r["case"]).outputs_from_pieces and r["converged"], r
         assert r["errors"].keys() == r["serial_errors"].keys(), r
@@ -372,6 +396,12 @@ def test_load_path_outputs_from_pieces_equal_the_whole_problems(ranks):
     assert "force_depth" in runs["indentation"]["report_keys"]
     assert runs["indentation"]["figures"] == ["force_depth.png"], runs
     assert runs["friction"]["figures"] == ["friction_tractions.png"], runs
+    assert runs["ironing"]["figures"] == ["reaction_forces.png"] and runs["ironing"]["pattern_grew"], runs
+    assert "vertical_1_0" in runs["ironing"]["report_keys"], runs
+    for name in SERIAL_PATHS:
+        steps, serial = runs[name]["path"], serial_paths[name]
+        assert [s[:2] + s[3:] for s in steps] == [s[:2] + s[3:] for s in serial], (name, ranks, steps, serial)
+        assert all(abs(s[2] - r[2]) <= 1e-10 * abs(r[2]) for s, r in zip(steps, serial)), (name, steps, serial)
 
 
 @pytest.mark.parametrize("ranks", [2, 3])

@@ -71,6 +71,24 @@ def test_forces_balance_at_every_step(ironing):
     assert np.all(np.diff(F[:, 1]) >= 0) and F[-1, 1] > 100  # N: the block pressed in
 
 
+def test_every_pairing_stays_within_the_reachable_dofs(ironing):
+    """The dofs of the foundation's fields that the pairings gave the contact elements (the
+    last one, after the path) lie among the interface's reachable dofs (those of the
+    foundation's cells along its top), which a distributed rank holds; the block's fields
+    reach none beyond their own cells'."""
+    case, p, problem, path, _ = ironing
+    term, measure = problem.constraint_terms[0], problem.constraints[0].on
+    for f, dofs, offset in zip(term.fields, term.dofs, term.offsets):
+        reach = measure.reachable(f)
+        if f.mesh is measure.mesh:
+            assert reach.size == 0
+            continue
+        top = problem.by_name["u2"].mesh.boundaries["top"]
+        assert reach.size == f.dof_basis.dofs.element_dofs.shape[0] * top.size
+        assert np.isin(dofs, reach).all(), f.name
+    assert measure.pairings > 1 and np.unique(measure.other_cells).size > 1
+
+
 def test_newton_converges_quadratically_once_the_pairing_settles(ironing):
     case, p, problem, path, _ = ironing
     r = path.results[-1].residuals
