@@ -6,7 +6,9 @@ the previous solution with the increment of the prescribed values lifted into th
 interior (Problem.lift: H_ff dx_f = -H_fc dx_fixed) and, where run-time parameters
 changed, the first-order change of the solution added (`predicted`, a tangent
 predictor).  A step whose Newton run fails is halved, down to min_step times its
-nominal length; after two successes in a row the step
+nominal length (interfaces paired in the current configuration paired again at the
+accepted solution from the accepted step's closest facets first, not from the failed
+attempt's); after two successes in a row the step
 doubles again (up to the next listed time).  A step whose Newton run met a non-convex J_h
 (Result.shifts: convexified steps) and failed, for the second time since alpha0 last changed,
 is retried with alpha0 halved on every constraint: the stability limits of alpha0 are those of the reference configuration, and a
@@ -117,6 +119,7 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
     if x0 is None:
         x[problem.free] = 0.0
     out, t, previous, solved_at = Path(), start, start, problem.state()[0]
+    accepted = problem.paired_facets()  # an attempt that fails starts the next one from these
     dt, successes, cuts, alpha0_scale, nonconvex = None, 0, 0, 1.0, 0
     for target in times:
         nominal = target - previous
@@ -135,6 +138,7 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
             out.result = result or out.result
             if result is not None and result.converged:
                 t, x, solved_at = t + h, result.x, problem.state()[0]
+                accepted = problem.paired_facets()
                 out.results.append(result)
                 out.states.append(problem.state())
                 out.steps.append(dict(step=len(out.steps) + 1, time=t, increment=h,
@@ -151,6 +155,9 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
                     dt, successes = (None if 2 * dt >= nominal else 2 * dt), 0
                 continue
             nonconvex += bool(result is not None and result.shifts)
+            if accepted:  # paired again at the accepted x from its facets, not the failed attempt's
+                problem.set_paired_facets(accepted)
+                problem.update_pairing(x)
             if nonconvex >= 2 and alpha0_scale > 0.5 ** ALPHA0_HALVINGS and problem.scale_alpha0(0.5):
                 alpha0_scale, nonconvex = alpha0_scale / 2, 0
                 if not quiet:

@@ -354,6 +354,17 @@ class Problem:
             self._free_block()
         return grew
 
+    def paired_facets(self):
+        """The closest facets of the points of every interface paired in the current
+        configuration (nitsche.sliding: the memory its hysteresis keeps), by constraint."""
+        return {i: self.constraints[i].on.facet.copy() for i in self.sliding}
+
+    def set_paired_facets(self, facets):
+        """Put back closest facets taken by paired_facets(); the next update_pairing pairs
+        from them (a failed load step's pairing is not the retried step's start)."""
+        for i, facet in facets.items():
+            self.constraints[i].on.facet = facet.copy()
+
     def newton_system(self, x):
         """J_h(x), its gradient on the free dofs and the free-free block of the Hessian (for a
         problem with residual terms: the energy terms' J, the residual and its Jacobian)."""

@@ -89,6 +89,25 @@ def test_every_pairing_stays_within_the_reachable_dofs(ironing):
     assert measure.pairings > 1 and np.unique(measure.other_cells).size > 1
 
 
+def test_a_failed_attempts_pairing_is_put_back_before_the_retry(ironing):
+    """A load step that fails leaves the pairing of its last iterate; the path pairs again at
+    the accepted solution from the accepted closest facets (Problem.paired_facets), so the
+    retried step starts where the accepted one ended: same facets, same J_h."""
+    case, p, problem, path, _ = ironing
+    x = path.results[-1].x
+    problem.update_pairing(x)
+    accepted, E = problem.paired_facets(), problem.energy(x)
+    u1 = problem.by_name["u1"]
+    moved = x.copy()
+    moved[u1.dof_basis.nodal_dofs[0] + problem.offsets["u1"]] += 3.0  # the block slid 3 mm on
+    problem.update_pairing(moved)  # a failed attempt's last iterate
+    assert any((problem.paired_facets()[i] != accepted[i]).any() for i in accepted)
+    problem.set_paired_facets(accepted)
+    problem.update_pairing(x)
+    assert all((problem.paired_facets()[i] == accepted[i]).all() for i in accepted)
+    assert problem.energy(x) == E
+
+
 def test_newton_converges_quadratically_once_the_pairing_settles(ironing):
     case, p, problem, path, _ = ironing
     r = path.results[-1].residuals
