@@ -57,6 +57,8 @@ def whole(case, problem, result, degree, p):
     carry(problem, serial)
     if hasattr(serial, "path"):  # the steps' states without the ranks' alpha0
         serial.path = dataclasses.replace(serial.path, states=[s[:2] for s in serial.path.states])
+    if serial.sliding:  # built paired at rest: paired at the solution (nitsche.sliding)
+        serial.update_pairing(result.x)
     return serial, dataclasses.replace(result, problem=serial)
 
 
