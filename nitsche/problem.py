@@ -206,6 +206,12 @@ class Problem:
                 continue
             B = self._gram(c)
             K = self._stiffness() if K is None and B is not None else K
+            if B is not None and not (np.isfinite(B.data).all() and np.isfinite(K.data).all()):
+                raise ValueError(f"constraint '{c.name}': the Jacobian of its multiplier or the energy's "
+                                 "Hessian is not finite at the initial state, so its global stability "
+                                 "limit cannot be computed (e.g. the derivative of a norm or a square root "
+                                 "at zero); leave out --global-check or make the multiplier "
+                                 "differentiable there")
             try:
                 mu = 0.0 if B is None else largest_generalized_eigenvalue(B, K)
             except SingularEnergy:

@@ -266,3 +266,14 @@ def test_arpack_estimates_are_reproducible():
     assert runs[0] == runs[1] == runs[2]
     N = A + sp.diags([0.5 * np.ones(n - 1)], [1])
     assert condition_number(N, dense_limit=10, tol=1e-2) == condition_number(N, dense_limit=10, tol=1e-2)
+
+
+def test_a_global_limit_of_a_multiplier_not_differentiable_at_the_start_is_a_clear_error():
+    """|grad u| has no derivative at u = 0 (JAX gives NaN): the global stability limit
+    (--global-check) names the constraint instead of failing inside the eigensolver."""
+    u = poisson()
+    c = ni.Inequality(lambda u: u.value + 1.0, lambda u: jnp.sqrt(dot(grad(u), grad(u))),
+                      ni.Scaling(0.1, 1), ni.cells(u), name="rooted")
+    problem = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - u, [c])
+    with pytest.raises(ValueError, match="constraint 'rooted'.*not finite at the initial state"):
+        problem.stability_limits()
