@@ -129,6 +129,8 @@ def path(problem, times, set_step=None, parameter="t", x0=None, start=0.0, min_s
             for f in history:
                 problem.set_values(f.name, parts[f.history_of])
             set_time(t + h)
+            if problem.sliding:  # a pairing may have grown the pattern: a solver for the present one
+                lin = problem.linear_solver(newton_options.get("solver", "auto"))
             try:
                 result = problem.minimize(predicted(problem, x, solved_at, lin), lift=True,
                                           **newton_options)
