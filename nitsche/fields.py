@@ -261,11 +261,12 @@ class Field:
         n = mesh.p.shape[1]
         if mesh.dim() == 2:
             build_facets(mesh)
-        edges = mesh.facets if mesh.dim() == 2 else mesh.edges
-        if fine.p.shape[1] == n + edges.shape[1] and np.array_equal(fine.p[:, :n], mesh.p) \
-                and np.array_equal(fine.p[:, n:], mesh.p[:, edges].mean(axis=1)):
-            return np.concatenate([np.tile(np.arange(n), (2, 1)), edges], axis=1)
-        return midpoint_pairs(fine.p, mesh.p, edges)
+        pairs = np.concatenate([np.tile(np.arange(n), (2, 1)), mesh.facets if mesh.dim() == 2 else mesh.edges],
+                               axis=1)
+        if fine.p.shape == (mesh.dim(), pairs.shape[1]) and \
+                np.array_equal(fine.p, 0.5 * (mesh.p[:, pairs[0]] + mesh.p[:, pairs[1]])):
+            return pairs  # numbered as scikit-fem refines
+        return midpoint_pairs(fine.p, mesh.p, pairs)
 
     # -- Hermite-type elements (BFS, Morley): dofs are derivatives at points ---------
     HERMITE_DOFS = ("u", "u_x", "u_y", "u_xy", "u_n")
@@ -334,12 +335,11 @@ class Field:
         return out
 
 
-def midpoint_pairs(x, p, edges, rtol=1e-10):
-    """For each point of x (dim, N): the pair (i, i) where it is the vertex p_i, (a, b) where
-    it is the midpoint of the edge (a, b) of `edges` (2, m), to rtol of the extent of p;
-    None if a point is neither."""
+def midpoint_pairs(x, p, pairs, rtol=1e-10):
+    """For each point of x (dim, N): the vertex pair (a, b) of `pairs` (2, m: (i, i) for a
+    vertex p_i, the ends of an edge) whose midpoint it is, to rtol of the extent of p; None
+    if a point is none of them."""
     from scipy.spatial import cKDTree
-    pairs = np.concatenate([np.tile(np.arange(p.shape[1]), (2, 1)), edges], axis=1)
     distance, i = cKDTree((0.5 * (p[:, pairs[0]] + p[:, pairs[1]])).T).query(
         x.T, distance_upper_bound=rtol * np.ptp(p, axis=1).max())
     return pairs[:, i] if np.all(np.isfinite(distance)) else None
