@@ -41,3 +41,51 @@ def test_cholmod_solves_csr_and_csc_alike_and_reuses_the_factor():
     assert lin_csr.factorizations == 1 and len(lin_csr.iterations) == 1
     assert np.linalg.norm(A2 @ z - b) <= 1e-8 * np.linalg.norm(b)
     assert lin_csr.is_positive_definite(A2) and lin_csr.factorizations == 1  # A2 - A >= 0
+
+
+def two_fields(n, coupled):
+    """Two Laplacians (fields u, v) with the coupling of a penalty 3 (u_i - v_i)^2 at the
+    nodes `coupled` (a contact set), on the pattern of the coupling at every node (the
+    structure a constraint's terms give on the whole surface), which holds exact zeros
+    off `coupled`: one pattern for every contact set, as Newton's matrices share."""
+    K = laplacian(n)
+    N = K.shape[0]
+
+    def assembled(c):
+        C = sp.diags(c)
+        return sp.csr_matrix(sp.bmat([[K + C, -C], [-C, K + C]]))
+    P = assembled(np.ones(N))  # the pattern
+    c = np.zeros(N)
+    c[coupled] = 3.0
+    rows = np.repeat(np.arange(2 * N), np.diff(P.indptr))
+    values = np.asarray(assembled(c).tocsr()[rows, P.indices]).ravel()
+    return sp.csr_matrix((values, P.indices, P.indptr), shape=P.shape)
+
+
+def test_cholmod_factors_the_nonzero_entries_and_analyzes_again_only_when_they_grow():
+    from sksparse.cholmod import cholesky
+    n = 12
+    N = n * n
+    b = np.random.default_rng(1).normal(size=2 * N)
+    A1 = two_fields(n, np.arange(0, N, 7))
+    A2 = two_fields(n, np.arange(0, N, 14))  # fewer points coupled: within the analysis
+    A3 = two_fields(n, np.arange(3, N, 5))   # others: a new analysis of the union
+    A2 = sp.csr_matrix((A2.data, A1.indices, A1.indptr), shape=A1.shape)  # Newton's: one pattern
+    A3 = sp.csr_matrix((A3.data, A1.indices, A1.indptr), shape=A1.shape)
+    assert np.count_nonzero(A1.data) < A1.nnz  # explicit zeros in the pattern
+    lin = Cholmod()
+    for A, analyses in ((A1, 1), (A2, 1), (A3, 2), (A1, 2)):
+        x = lin.solve(A, b)  # rtol 0: a factorization of each
+        assert np.linalg.norm(A @ x - b) <= 1e-12 * np.linalg.norm(b)
+        assert lin.analyses == analyses and lin.is_positive_definite(A)
+    assert lin.factorizations == 4 and lin.is_positive_definite(A3)
+    kept = lin.analyzed.kept
+    assert N < kept.sum() < A1.nnz  # the never-coupled nodes' zeros are left out
+    # a third of the nodes in contact: fill 2568 against 3219 with the whole coupling's pattern
+    A = two_fields(n, np.arange(N // 3))
+    lin_third = Cholmod()
+    lin_third.solve(A, b)
+    assert lin_third.factor.L().nnz < 0.85 * cholesky(symmetric_csc(A)).L().nnz
+    # CG preconditioned by the kept factor on a matrix of the same pattern
+    z = lin.solve(A2, b, rtol=1e-10)
+    assert np.linalg.norm(A2 @ z - b) <= 1e-10 * np.linalg.norm(b) and lin.analyses == 2
