@@ -36,7 +36,10 @@ def condition_number(A, dense_limit=DENSE_LIMIT, tol=1e-5):
     lambda_min / lambda_max are the eigenvalues of smallest and largest magnitude
     (symmetric A, signed: a negative lambda_min reveals an indefinite matrix) or
     the extreme singular values (non-symmetric A)."""
-    A = sp.csr_matrix(A, dtype=float)
+    A = sp.csr_matrix(A, dtype=float, copy=True)
+    A.eliminate_zeros()  # a Newton matrix's pattern holds the exact zeros of inactive terms
+    # (two membranes: half its entries): the same matrix, half the work of each product and
+    # of the factor's fill
     n = A.shape[0]
     if A.shape != (n, n) or n == 0:
         raise ValueError(f"condition_number needs a non-empty square matrix, got shape {A.shape}")
