@@ -18,6 +18,7 @@ Writes benchmarks/results/memory_3d.json (one row per run, appended).
 
     python benchmarks/memory_3d.py --case membrane-solid --level 2 --solver amg
     python benchmarks/memory_3d.py --level 3 --set cells=tet --solver amg
+    python benchmarks/memory_3d.py --case indentation --set geometry=3d --degree 2 --level 2
 """
 import argparse
 import json
@@ -39,7 +40,8 @@ def nbytes(*arrays):
     for a in arrays:
         if a is None or not hasattr(a, "nbytes"):
             continue
-        base = a if a.base is None else a.base
+        base = getattr(a, "base", None)  # (a device array has none)
+        base = a if base is None else base
         if id(base) in seen:
             continue
         seen.add(id(base))
@@ -75,6 +77,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--case", default="membrane-solid")
     ap.add_argument("--level", type=int, default=2)
+    ap.add_argument("--degree", type=int, default=1, help="the case's element degree (e.g. "
+                    "indentation --set geometry=3d --degree 2: P2 tetrahedra)")
     ap.add_argument("--set", nargs="*", default=[], help="case parameters name=value")
     ap.add_argument("--solver", choices=["cholmod", "amg", "both"], default="both")
     args = ap.parse_args()
@@ -82,7 +86,7 @@ def main():
     case = get(args.case)
     p = case.parameters(dict(s.split("=", 1) for s in args.set))
     t0 = time.perf_counter()
-    problem = case.problem(args.level, 1, p)
+    problem = case.problem(args.level, args.degree, p)
     setup = time.perf_counter() - t0
     x = problem.initial(None)
     a = problem.assembler
@@ -91,7 +95,7 @@ def main():
     _, _, A = problem.newton_system(x)
     assembly = time.perf_counter() - t0
     assembly_peak = peak_mb()
-    row = dict(case=args.case, level=args.level, parameters=vars(p), unknowns=int(problem.free.size),
+    row = dict(case=args.case, level=args.level, degree=args.degree, parameters=vars(p), unknowns=int(problem.free.size),
                setup_seconds=setup, first_assembly_seconds=assembly,
                field_bases=sum(basis_bytes(vars(f).get("dof_basis") or f.basis)  # (older: f.basis)
                                + (basis_bytes(f._basis) if "_basis" in vars(f) else 0)
@@ -125,7 +129,7 @@ def main():
                                    if M is not None and hasattr(M, "data"))
     row["peak_mb"] = peak_mb()
     mb = lambda b: f"{b / 2**20:9.1f} MB"
-    print(f"{args.case} level {args.level}: {row['unknowns']} unknowns, setup {setup:.1f} s, "
+    print(f"{args.case} level {args.level} degree {args.degree}: {row['unknowns']} unknowns, setup {setup:.1f} s, "
           f"first assembly {assembly:.1f} s, peak {row['peak_mb']:.0f} MB "
           f"({assembly_peak:.0f} MB after the first assembly)")
     print(f"  fields' scikit-fem bases     {mb(row['field_bases'])}")
