@@ -340,9 +340,18 @@ class Term:
         self._kernels, self._zeros = {}, {}
 
     def _record(self, fs):
-        """Which derivative orders of which field the density uses (by tracing it once)."""
-        used = {f.name: set() for f in fs}
+        """Which derivative orders of which field the density uses: the layout [(field name,
+        ((order, shape, start, size) of each order used), orders used)], found by tracing the
+        density once per process for its fingerprint and the fields' jet shapes (and kept
+        in kernel_store, like the kernels, for later processes)."""
         shapes = {f.name: dict(zip(f.orders, self.measure.shapes(f, f.orders))) for f in fs}
+        key = ("layout", fingerprint(self.pointwise), self.residual, self.vector, self.dim, self.parameter_names,
+               tuple((f.name, tuple((o, tuple(s)) for o, s in shapes[f.name].items())) for f in fs))
+        return _cached(key, lambda: _stored(key, lambda: self._trace_layout(fs, shapes)))
+
+    def _trace_layout(self, fs, shapes):
+        """_record's layout, by tracing the density on jets of the given shapes."""
+        used = {f.name: set() for f in fs}
 
         def trace(zs, x, n, h, a, t):
             args = {"x": x, "n": n, "h": h, ALPHA0: a, **dict(zip(self.parameter_names, t))}
@@ -370,7 +379,7 @@ class Term:
                 start += size
             if parts:
                 layout.append((f.name, tuple(parts), tuple(sorted(used[f.name]))))
-        return layout
+        return tuple(layout)
 
     def retabulate(self):
         """Tabulate again the fields that live on another mesh than the measure's (after an

@@ -1,0 +1,58 @@
+"""What the set-up of a problem reuses instead of computing anew gives what it would
+compute: the density's layout (memoized per process and kept in kernel_store)."""
+import numpy as np
+import pytest
+from skfem import ElementTetP1, ElementTriP1, ElementTriP2, MeshTet, MeshTri
+
+import nitsche as ni
+from nitsche import assembly, kernel_store
+from nitsche.assembly import Term
+from nitsche.ops import dot, grad, lap
+
+
+@pytest.fixture
+def traces(tmp_path, monkeypatch):
+    """The layouts traced from here on (an empty store on disk, nothing memoized)."""
+    monkeypatch.setattr(kernel_store, "folder", lambda: str(tmp_path))
+    monkeypatch.setattr(assembly, "_COMPILED", {})
+    traced = []
+    trace = Term._trace_layout
+    monkeypatch.setattr(Term, "_trace_layout", lambda self, fs, shapes: traced.append(self.label) or trace(self, fs, shapes))
+    return traced
+
+
+def constraint_term(mesh, element, multiplier, offset=0.5):
+    u = ni.Field("u", mesh, element, fixed="boundary")
+    c = ni.Inequality(lambda u, x: u - offset * x[0], multiplier, ni.Scaling(0.1, 2), ni.cells(u), name="c")
+    return u, Term(c.pointwise(), c.names, c.on, [u], {"u": 0}, "c", keep_points=True)
+
+
+def test_the_layout_is_traced_once_per_density_and_jet_shapes(traces):
+    """A density of the same code and values on a finer mesh (a nested chain's next level) or
+    with another element of the same jet shapes takes the layout traced first, which equals
+    a trace of its own; another value of a closure, another density or other jet shapes
+    (3D) trace anew; a second process finds the layout on disk (kernel_store)."""
+    _, coarse = constraint_term(MeshTri().refined(1), ElementTriP1(), lambda u: -lap(u))
+    assert traces == ["c"] and [orders for _, _, orders in coarse.layout] == [(0, 2)]
+    u, fine = constraint_term(MeshTri().refined(3), ElementTriP1(), lambda u: -lap(u))
+    _, p2 = constraint_term(MeshTri().refined(1), ElementTriP2(), lambda u: -lap(u))
+    assert traces == ["c"] and fine.layout == coarse.layout == p2.layout
+    assert fine._trace_layout([u], {"u": dict(zip(u.orders, fine.measure.shapes(u, u.orders)))}) == fine.layout
+    del traces[:]
+    constraint_term(MeshTri(), ElementTriP1(), lambda u: -lap(u), offset=0.25)
+    _, first = constraint_term(MeshTri(), ElementTriP1(), lambda u: dot(grad(u), grad(u)))
+    _, tet = constraint_term(MeshTet(), ElementTetP1(), lambda u: -lap(u))
+    assert len(traces) == 3 and [o for _, _, o in first.layout] == [(0, 1)]
+    assert tet.layout != coarse.layout and [o for _, _, o in tet.layout] == [(0, 2)]
+    assembly._COMPILED.clear()  # as in a new process: the layouts come from the store
+    _, again = constraint_term(MeshTri().refined(2), ElementTriP1(), lambda u: -lap(u))
+    assert len(traces) == 3 and again.layout == coarse.layout
+
+
+def test_an_invalid_density_is_an_error_every_time(traces):
+    """An error of the density's trace is not memoized: the second term raises it too."""
+    u = ni.Field("u", MeshTri(), ElementTriP1())
+    for _ in range(2):
+        with pytest.raises(ValueError, match="must return a scalar"):
+            Term(lambda args: args["u"].grad, ("u",), ni.cells(u), [u], {"u": 0}, "the energy density")
+    assert len(traces) == 2
