@@ -157,10 +157,8 @@ class Problem:
             if not energy:
                 raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
                                  "constraint's mesh to bound its multiplier")
-            B = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
-                     f"the multiplier of constraint '{c.name}'", vector=True,
-                     parameters=self.parameters)  # the multiplier's jets only, alpha0 = 1
-            if not any(T.any() for T in B.T):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
+            B = self._multiplier_term(c, t)  # the multiplier's jets only, alpha0 = 1
+            if not any(np.asarray(T).any() for T in B.T):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
                 out[c.name] = np.full(t.nel, np.inf)
                 continue
             out[c.name] = local_limits(*multiplier_jacobian(B, c, x), t.cells, free,
@@ -170,14 +168,18 @@ class Problem:
     def _multiplier_on_own_mesh(self, c):
         return all(self.by_name[k].mesh is c.on.mesh for k in c.multiplier_names if k in self.by_name)
 
+    def _multiplier_term(self, c, t):
+        """The term of c.scaled_multiplier() (alpha0 = 1 until set) on the measure of c's
+        term t, sharing t's per-element data."""
+        return Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
+                    f"the multiplier of constraint '{c.name}'", vector=True, parameters=self.parameters,
+                    like=t)
+
     def _gram(self, c, alpha0=None):
         """B (free dofs): the Gram matrix of sqrt(alpha/alpha0) D lambda of a constraint, or
-        of sqrt(alpha) D lambda with the given alpha0 per element (a fresh term: the
-        constraint's own may have released its tabulations)."""
+        of sqrt(alpha) D lambda with the given alpha0 per element."""
         try:
-            term = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
-                        f"the multiplier of constraint '{c.name}'", vector=True,
-                        parameters=self.parameters)
+            term = self._multiplier_term(c, self.constraint_terms[self.constraints.index(c)])
         except ConstantDensity:  # a given multiplier lambda = q: B = 0
             return None
         if alpha0 is not None:

@@ -1,5 +1,6 @@
 """What the set-up of a problem reuses instead of computing anew gives what it would
-compute: the density's layout (memoized per process and kept in kernel_store)."""
+compute: the density's layout (memoized per process and kept in kernel_store), the data a
+constraint's multiplier term shares with the constraint's term."""
 import numpy as np
 import pytest
 from skfem import ElementTetP1, ElementTriP1, ElementTriP2, MeshTet, MeshTri
@@ -56,3 +57,25 @@ def test_an_invalid_density_is_an_error_every_time(traces):
         with pytest.raises(ValueError, match="must return a scalar"):
             Term(lambda args: args["u"].grad, ("u",), ni.cells(u), [u], {"u": 0}, "the energy density")
     assert len(traces) == 2
+
+
+def test_the_multiplier_term_shares_the_constraint_terms_data():
+    """Problem._multiplier_term shares W, h, x and the inverse Jacobians of the constraint's
+    term (the same device arrays) and gives the Jacobian of the multiplier that a term of
+    its own gives, bit for bit; a term on another measure shares nothing."""
+    u = ni.Field("u", MeshTri().refined(2), ElementTriP2(), fixed="boundary")
+    c = ni.Inequality(lambda u: u + 0.1, lambda u, x: dot(grad(u), x) - u, ni.Scaling("auto", 1), ni.cells(u),
+                      name="c")
+    problem = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - u, [c])
+    t = problem.constraint_terms[0]
+    B = problem._multiplier_term(c, t)
+    assert all(B.data[k] is t.data[k] for k in ("W", "h", "x")) and B.data["n"] is None
+    assert B.J[0] is t.J[0] is not None
+    own = Term(c.scaled_multiplier(), c.multiplier_names, c.on, problem.fields, problem.offsets, "own", vector=True)
+    assert own.data["W"] is not t.data["W"]
+    x = np.random.default_rng(3).standard_normal(problem.ndofs)
+    assert np.array_equal(B.run("jacobian", x)[0], own.run("jacobian", x)[0])
+    assert np.array_equal(B.alpha0, np.ones(B.nel))
+    with pytest.raises(ValueError, match="same measure"):
+        Term(c.scaled_multiplier(), c.multiplier_names, ni.cells(u), problem.fields, problem.offsets, "other",
+             vector=True, like=t)
