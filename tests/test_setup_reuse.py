@@ -1,6 +1,6 @@
 """What the set-up of a problem reuses instead of computing anew gives what it would
 compute: the density's layout (memoized per process and kept in kernel_store), the data a
-constraint's multiplier term shares with the constraint's term."""
+constraint's multiplier term shares with the constraint's term, the facets' sorted columns."""
 import numpy as np
 import pytest
 from skfem import ElementTetP1, ElementTriP1, ElementTriP2, MeshTet, MeshTri
@@ -8,6 +8,7 @@ from skfem import ElementTetP1, ElementTriP1, ElementTriP2, MeshTet, MeshTri
 import nitsche as ni
 from nitsche import assembly, kernel_store
 from nitsche.assembly import Term
+from nitsche.measures import sorted_columns
 from nitsche.ops import dot, grad, lap
 
 
@@ -79,3 +80,9 @@ def test_the_multiplier_term_shares_the_constraint_terms_data():
     with pytest.raises(ValueError, match="same measure"):
         Term(c.scaled_multiplier(), c.multiplier_names, ni.cells(u), problem.fields, problem.offsets, "other",
              vector=True, like=t)
+
+
+@pytest.mark.parametrize("rows", [1, 2, 3, 4])
+def test_sorted_columns_as_numpy(rows):
+    a = np.random.default_rng(rows).integers(0, 5, (rows, 300))
+    assert np.array_equal(sorted_columns(a), np.sort(a, axis=0))
