@@ -119,7 +119,8 @@ class Problem:
         for c, t in zip(self.constraints, self.constraint_terms):
             limit = np.full(t.nel, given[c.name], dtype=float) if c.name in given \
                 else local.get(c.name, np.full(t.nel, np.inf))
-            alpha0 = c.scaling.per_element(limit, centroids(t), t.h)
+            x = centroids(t) if callable(c.scaling.alpha0) else None  # (read by a function alpha0 only)
+            alpha0 = c.scaling.per_element(limit, x, t.h)
             self.limits[c.name], self.alpha0[c.name] = limit, alpha0
             t.alpha0 = alpha0
             # (limit 0: no limit, warned above; theta = -1 is stable for every alpha0)

@@ -86,3 +86,20 @@ def test_the_multiplier_term_shares_the_constraint_terms_data():
 def test_sorted_columns_as_numpy(rows):
     a = np.random.default_rng(rows).integers(0, 5, (rows, 300))
     assert np.array_equal(sorted_columns(a), np.sort(a, axis=0))
+
+
+def test_centroids_are_computed_for_a_function_alpha0_only(monkeypatch):
+    """A function alpha0(x, h) gets the elements' centroids; a number or 'auto' does not
+    need them, and the problem is set up without computing them."""
+    import nitsche.problem as problem_module
+    u = ni.Field("u", MeshTri().refined(2), ElementTriP1(), fixed="boundary")
+
+    def problem(alpha0):
+        c = ni.Inequality(lambda u: u + 0.1, lambda u: 1.0 + 0.0 * u, ni.Scaling(alpha0, 2), ni.cells(u), name="c")
+        return ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - u, [c])
+    p = problem(lambda x, h: 0.01 + 0.001 * x[0] + h)
+    t = p.constraint_terms[0]
+    assert np.array_equal(p.alpha0["c"], 0.01 + 0.001 * problem_module.centroids(t)[0] + t.h)
+    monkeypatch.setattr(problem_module, "centroids", None)  # (calling it would fail)
+    assert np.array_equal(problem(0.05).alpha0["c"], np.full(t.nel, 0.05))
+    assert np.all(problem("auto").alpha0["c"] > 0)
