@@ -158,7 +158,7 @@ class Problem:
             if not energy:
                 raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
                                  "constraint's mesh to bound its multiplier")
-            B = self._multiplier_term(c, t)  # the multiplier's jets only, alpha0 = 1
+            B = self._multiplier_term(c, like=t)  # the multiplier's jets only, alpha0 = 1
             if not any(np.asarray(T).any() for T in B.T):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
                 out[c.name] = np.full(t.nel, np.inf)
                 continue
@@ -169,18 +169,19 @@ class Problem:
     def _multiplier_on_own_mesh(self, c):
         return all(self.by_name[k].mesh is c.on.mesh for k in c.multiplier_names if k in self.by_name)
 
-    def _multiplier_term(self, c, t):
-        """The term of c.scaled_multiplier() (alpha0 = 1 until set) on the measure of c's
-        term t, sharing t's per-element data."""
+    def _multiplier_term(self, c, like=None):
+        """The term of c.scaled_multiplier() (alpha0 = 1 until set) on c's measure, sharing
+        the per-element data of the term `like` there (Term)."""
         return Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
                     f"the multiplier of constraint '{c.name}'", vector=True, parameters=self.parameters,
-                    like=t)
+                    like=like)
 
     def _gram(self, c, alpha0=None):
         """B (free dofs): the Gram matrix of sqrt(alpha/alpha0) D lambda of a constraint, or
-        of sqrt(alpha) D lambda with the given alpha0 per element."""
+        of sqrt(alpha) D lambda with the given alpha0 per element (a term with data of its
+        own: the constraint's may have released theirs, which reading them would put back)."""
         try:
-            term = self._multiplier_term(c, self.constraint_terms[self.constraints.index(c)])
+            term = self._multiplier_term(c)
         except ConstantDensity:  # a given multiplier lambda = q: B = 0
             return None
         if alpha0 is not None:

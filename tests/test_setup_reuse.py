@@ -61,18 +61,19 @@ def test_an_invalid_density_is_an_error_every_time(traces):
 
 
 def test_the_multiplier_term_shares_the_constraint_terms_data():
-    """Problem._multiplier_term shares W, h, x and the inverse Jacobians of the constraint's
-    term (the same device arrays) and gives the Jacobian of the multiplier that a term of
-    its own gives, bit for bit; a term on another measure shares nothing."""
+    """Problem._multiplier_term(c, like=t) (local_limits) shares W, h, x and the inverse
+    Jacobians of the constraint's term (the same device arrays) and gives the Jacobian of
+    the multiplier that a term with data of its own (_gram's) gives, bit for bit; a term
+    on another measure cannot share them."""
     u = ni.Field("u", MeshTri().refined(2), ElementTriP2(), fixed="boundary")
     c = ni.Inequality(lambda u: u + 0.1, lambda u, x: dot(grad(u), x) - u, ni.Scaling("auto", 1), ni.cells(u),
                       name="c")
     problem = ni.Problem([u], lambda u: 0.5 * dot(grad(u), grad(u)) - u, [c])
     t = problem.constraint_terms[0]
-    B = problem._multiplier_term(c, t)
+    B = problem._multiplier_term(c, like=t)
     assert all(B.data[k] is t.data[k] for k in ("W", "h", "x")) and B.data["n"] is None
     assert B.J[0] is t.J[0] is not None
-    own = Term(c.scaled_multiplier(), c.multiplier_names, c.on, problem.fields, problem.offsets, "own", vector=True)
+    own = problem._multiplier_term(c)
     assert own.data["W"] is not t.data["W"]
     x = np.random.default_rng(3).standard_normal(problem.ndofs)
     assert np.array_equal(B.run("jacobian", x)[0], own.run("jacobian", x)[0])
