@@ -4,7 +4,9 @@ Each repetition runs, interleaved (ours, before, ours, ...), a child process tha
 levels 0..L by nitsche.study.nested (what `nitsche run CASE --level L` does before its
 outputs) and reports the chain's CPU time (user + system, imports excluded), its wall
 time, the set-up of each level (`case.problem`), the prolongations between levels, the
-kernel loading (`assembly.compile_seconds`), the finest level's Newton solve, the peak
+kernel loading (`assembly.compile_seconds`), the checks around each Newton solve
+(Problem.check_finite, newton.residual_scale, Problem.constraint_report: CPU time, all
+levels; kernels they load count in loading too), the finest level's Newton solve, the peak
 resident memory (ru_maxrss), the minor page faults, the energy and the iterations.  CPU
 time is the measure that a shared machine disturbs least; medians are printed.
 
@@ -24,7 +26,9 @@ from run_ratio import HERE, write_results
 CHILD = r"""
 import json, resource, sys, time
 import nitsche.assembly as assembly
+import nitsche.newton as newton
 import nitsche.study as study
+from nitsche.problem import Problem
 from nitsche.cases import get
 from nitsche.cli import parse_assignments
 case_name, level = sys.argv[1], int(sys.argv[2])
@@ -40,6 +44,19 @@ def timed_prolongate(*a):
     finally:
         prolongation[0] += time.process_time() - c
 study.prolongate = timed_prolongate
+checks = [0.0]
+
+def timed(fn):
+    def call(*a, **k):
+        c = time.process_time()
+        try:
+            return fn(*a, **k)
+        finally:
+            checks[0] += time.process_time() - c
+    return call
+Problem.check_finite = timed(Problem.check_finite)
+Problem.constraint_report = timed(Problem.constraint_report)
+newton.residual_scale = timed(newton.residual_scale)
 
 def build(k):
     c = time.process_time()
@@ -55,7 +72,7 @@ for k, problem, result in study.nested(build, range(level + 1), case.solve):
 cpu, wall = time.process_time() - c0, time.perf_counter() - t0
 usage = resource.getrusage(resource.RUSAGE_SELF)
 print(json.dumps(dict(cpu=cpu, wall=wall, setup=setup, prolongation=prolongation[0],
-                      loading=assembly.compile_seconds[0], finest_solve=finest,
+                      loading=assembly.compile_seconds[0], checks=checks[0], finest_solve=finest,
                       energy=result.energy, iterations=its, unknowns=int(problem.free.size),
                       peak_mb=usage.ru_maxrss / 1024.0, minor_faults=usage.ru_minflt)))
 """
@@ -91,7 +108,8 @@ def main():
                 runs[v].append(r)
                 print(f"  {case} L{args.level} rep {rep} {v}: CPU {r['cpu']:.2f} s (wall {r['wall']:.2f}), "
                       f"set-up {sum(r['setup']):.2f} (finest {r['setup'][-1]:.2f}), prolongation "
-                      f"{r['prolongation']:.2f}, loading {r['loading']:.2f}, finest solve "
+                      f"{r['prolongation']:.2f}, loading {r['loading']:.2f}, checks "
+                      f"{r['checks']:.2f}, finest solve "
                       f"{r['finest_solve']:.2f}, {r['peak_mb']:.0f} MB, {r['minor_faults']} faults",
                       file=sys.stderr, flush=True)
         for v, _ in versions:
@@ -103,14 +121,15 @@ def main():
                              finest_setup=med(lambda r: r["setup"][-1]),
                              prolongation=med(lambda r: r["prolongation"]),
                              loading=med(lambda r: r["loading"]),
+                             checks=med(lambda r: r["checks"]),
                              finest_solve=med(lambda r: r["finest_solve"]),
                              peak_mb=med(lambda r: r["peak_mb"]),
                              minor_faults=med(lambda r: r["minor_faults"]), runs=runs[v]))
     print(f"{'case':<14}{'version':<8}{'unknowns':>9}{'CPU s':>7}{'set-up':>8}{'finest':>8}"
-          f"{'prolong.':>9}{'loading':>8}{'solve L':>8}{'peak MB':>8}  energy, iterations")
+          f"{'prolong.':>9}{'loading':>8}{'checks':>8}{'solve L':>8}{'peak MB':>8}  energy, iterations")
     for r in rows:
         print(f"{r['case']:<14}{r['version']:<8}{r['unknowns']:>9d}{r['cpu']:>7.2f}{r['setup']:>8.2f}"
-              f"{r['finest_setup']:>8.2f}{r['prolongation']:>9.3f}{r['loading']:>8.2f}"
+              f"{r['finest_setup']:>8.2f}{r['prolongation']:>9.3f}{r['loading']:>8.2f}{r['checks']:>8.2f}"
               f"{r['finest_solve']:>8.2f}{r['peak_mb']:>8.0f}  {r['energy']:.15g}, {r['iterations']}")
     write_results(args.name, rows, "CPU seconds of the chain (imports excluded), medians of the "
                   "repetitions; shared 2-core machine")

@@ -194,7 +194,7 @@ class Chunked:
         padded = empty((end,) + a.shape[1:])
         padded[:len(a)] = a
         padded[len(a):] = a[-1] if len(a) else 0.0
-        self.parts = [jax.device_put(padded[s:s + n]) for s, n in blocks]
+        self.parts = jax.device_put([padded[s:s + n] for s, n in blocks])  # one batched call
         shared = all(p.unsafe_buffer_pointer() == padded[s:].ctypes.data for p, s in zip(self.parts, self.starts))
         self.padded = padded if shared else None
         if shared:
@@ -222,10 +222,6 @@ class Chunked:
         """All rows on the host."""
         a = self.host if self.host is not None else np.concatenate([host(p) for p in self.parts])[:self.shape[0]]
         return a if dtype is None else a.astype(dtype)
-
-    def any(self):
-        """Whether any entry is non-zero (the padding repeats entries)."""
-        return bool(np.asarray(self).any())
 
     def rows(self, rows):
         """The given rows on the host (rows of the padding too)."""
@@ -276,12 +272,16 @@ class Term:
     """A pointwise density integrated on a measure, ready to assemble."""
 
     def __init__(self, pointwise, names, measure, fields, offsets, label, keep_points=False,
-                 residual=False, vector=False, parameters=None):
+                 residual=False, vector=False, parameters=None, like=None):
         """keep_points: store the quadrature points x even if the density does not use
         them (constraints keep them for their reports); residual: the density returns the
         pair (c, q) of a residual term (module docstring); vector: it may return an array
         (e.g. a vector multiplier, for its Jacobian), not an energy; parameters: the
-        problem's Parameters (those the density names enter its kernels as data)."""
+        problem's Parameters (those the density names enter its kernels as data); like: a
+        term on the same measure whose per-element data (W, h, x, n and the inverse
+        Jacobians, the same arrays) this one shares instead of putting its own there."""
+        if like is not None and like.measure is not measure:
+            raise ValueError(f"{label}: a term shares the data of a term on the same measure only")
         self.residual, self.vector = residual, vector
         by_name = {f.name: f for f in fields}
         self.parameters = parameters or Parameters()
@@ -300,10 +300,9 @@ class Term:
         self.layout = self._record(fs)
         if not self.layout:
             raise ConstantDensity(f"{label} does not depend on any field")
-        W = measure.weights
-        self.nel, self.nq = W.shape
-        n = measure.normals
-        self.has_normal = n is not None
+        W = measure.weights if like is None else None
+        self.nel, self.nq = W.shape if like is None else (like.nel, like.nq)
+        self.has_normal = measure.normals is not None if like is None else like.has_normal
         self.fields = [by_name[name] for name, _, _ in self.layout]
         self.chunks = tuple(elements_per_call(c, self.nq) for c in CHUNK_POINTS)
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
@@ -317,9 +316,10 @@ class Term:
             kept = np.flatnonzero(T.nonzero_rows() if mapped else T.any(axis=(0, 1, 3)))
             if kept.size == 0:
                 kept = np.arange(1)
-            if mapped:
+            if mapped:  # (the inverse Jacobians are the measure's, the same for all its fields)
+                shared = [J for J in (like.J if like is not None else ()) if J is not None]
                 self.T.append(self._stored(T.R))
-                self.J.append(self._stored(T.invJ))
+                self.J.append(shared[0] if shared else self._stored(T.invJ))
                 self.maps.append(T.spec)
             else:
                 self.T.append(self._stored(T if kept.size == T.shape[2] else T[:, :, kept]))
@@ -332,17 +332,28 @@ class Term:
         self.global_dofs = self.field_dofs[0] if len(self.field_dofs) == 1 \
             else np.concatenate(self.field_dofs, axis=1)  # (one field at offset 0: no copies)
         # per-point data on the device (Chunked); x and n None where the term keeps none
-        self.data = dict(W=self._chunked(W), h=self._chunked(np.asarray(measure.h, dtype=float)),
-                         x=self._chunked(np.moveaxis(measure.points, 0, -1)) if "x" in names or keep_points else None,
-                         n=self._chunked(np.moveaxis(n, 0, -1)) if self.has_normal else None)
+        given = dict(W=lambda: W, h=lambda: np.asarray(measure.h, dtype=float),
+                     x=lambda: np.moveaxis(measure.points, 0, -1), n=lambda: np.moveaxis(measure.normals, 0, -1))
+        kept = dict(W=True, h=True, x="x" in names or keep_points, n=self.has_normal)
+        self.data = {k: None if not kept[k] else like.data[k] if like is not None and like.data[k] is not None
+                     else self._chunked(given[k]()) for k in given}
         self.cells = measure.cells  # the cell of measure.mesh that owns each element
-        self.alpha0 = np.ones(self.nel)  # per-element data of constraint terms (see functional.ALPHA0)
+        self._alpha0 = None  # per-element data of constraint terms (functional.ALPHA0): 1 until set
         self._kernels, self._zeros = {}, {}
 
     def _record(self, fs):
-        """Which derivative orders of which field the density uses (by tracing it once)."""
-        used = {f.name: set() for f in fs}
+        """Which derivative orders of which field the density uses: the layout [(field name,
+        ((order, shape, start, size) of each order used), orders used)], found by tracing the
+        density once per process for its fingerprint and the fields' jet shapes (and kept
+        in kernel_store, like the kernels, for later processes)."""
         shapes = {f.name: dict(zip(f.orders, self.measure.shapes(f, f.orders))) for f in fs}
+        key = ("layout", fingerprint(self.pointwise), self.residual, self.vector, self.dim, self.parameter_names,
+               tuple((f.name, tuple((o, tuple(s)) for o, s in shapes[f.name].items())) for f in fs))
+        return _cached(key, lambda: _stored(key, lambda: self._trace_layout(fs, shapes)))
+
+    def _trace_layout(self, fs, shapes):
+        """_record's layout, by tracing the density on jets of the given shapes."""
+        used = {f.name: set() for f in fs}
 
         def trace(zs, x, n, h, a, t):
             args = {"x": x, "n": n, "h": h, ALPHA0: a, **dict(zip(self.parameter_names, t))}
@@ -370,7 +381,7 @@ class Term:
                 start += size
             if parts:
                 layout.append((f.name, tuple(parts), tuple(sorted(used[f.name]))))
-        return layout
+        return tuple(layout)
 
     def retabulate(self):
         """Tabulate again the fields that live on another mesh than the measure's (after an
@@ -441,7 +452,7 @@ class Term:
     @property
     def alpha0(self):
         """alpha0 per element (see functional.ALPHA0), read on the host."""
-        return np.asarray(self._alpha0)
+        return np.ones(self.nel) if self._alpha0 is None else np.asarray(self._alpha0)
 
     @alpha0.setter
     def alpha0(self, values):
@@ -491,6 +502,8 @@ class Term:
                     self._zeros[chunk] = on_device(np.zeros((chunk,) + shape))
                 return self._zeros[chunk]
             return a.parts[i] if rows is None else a.rows(rows)
+        if self._alpha0 is None:
+            self.alpha0 = 1.0
         d, point = self.data, (self.nq, self.dim)
         return [one(d["W"], ()), one(d["x"], point), one(d["n"], point), one(d["h"], ()), one(self._alpha0, ())]
 

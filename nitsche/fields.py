@@ -43,12 +43,16 @@ class DofBasis(CellBasis):
     def _doflocs(self):
         """The dofs' locations x = F_e(X_j) as scikit-fem sets them (dof D[j, e] at F_e of
         the reference location X_j, later j and e winning), F evaluated once per distinct
-        X_j (a vector element repeats each point for every component)."""
+        X_j (a vector element repeats each point for every component) and read once per
+        dof, at its last (j, e)."""
         X, point = np.unique(np.asarray(self.elem.doflocs), axis=0, return_inverse=True)
         x = self.mapping.F(X.T)  # (dim, cells, distinct points)
-        doflocs = np.zeros((x.shape[0], self.N))
-        for j, k in enumerate(point.ravel()):
-            doflocs[:, self.dofs.element_dofs[j]] = x[:, :, k]
+        D = self.dofs.element_dofs
+        last = np.full(self.N, -1)
+        last[D.ravel()] = np.arange(D.size)  # writes in order j, then e: the last one stays
+        j, e = np.divmod(last, D.shape[1])
+        doflocs = x[:, e, point.ravel()[j]]
+        doflocs[:, last < 0] = 0.0  # a dof of no element (an unused vertex): at 0, as scikit-fem
         return doflocs
 
     @property

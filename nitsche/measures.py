@@ -26,6 +26,7 @@ from . import partition
 from .elements import has_zero_hessian
 from .jets import ORDERS
 from .locate import reference_coordinates
+from .pattern import changes, run_numbers, sort_with_order
 
 
 _DIAMETERS = {}  # id(mesh) -> diameters, dropped with the mesh
@@ -34,7 +35,7 @@ _DIAMETERS = {}  # id(mesh) -> diameters, dropped with the mesh
 def cell_diameters(mesh):
     """Largest vertex-to-vertex distance of every cell, shape (nelems,) (once per mesh)."""
     if id(mesh) not in _DIAMETERS:
-        p = mesh.p[:, mesh.t]  # (dim, nverts, nelems)
+        p = np.take(mesh.p, mesh.t, axis=1)  # (dim, nverts, nelems); (take: 3x mesh.p[:, mesh.t])
         nv = p.shape[1]
         squared = np.zeros(p.shape[2])
         for i in range(nv):
@@ -49,21 +50,36 @@ def build_facets(mesh):
     """Set mesh.facets and mesh.t2f as scikit-fem builds them (the sorted vertex tuples of
     the cells' facets in lexicographic order, and each cell's facets), unless built: the
     tuple (a_0 <= ... <= a_m) is the integer key sum_i a_i N^(m-i) (N vertices), so one
-    np.unique of integers replaces scikit-fem's np.unique over columns (4x faster)."""
+    sort of integers (pattern.sort_with_order) replaces scikit-fem's np.unique over
+    columns: facet f is the f-th distinct key, first met at its first occurrence."""
     if hasattr(mesh, "_facets") or hasattr(mesh, "_t2f") or \
             type(mesh)._init_facets is not Mesh._init_facets:  # e.g. hexahedra: unsorted facets
         return
     local = mesh.elem.refdom.facets
-    columns = np.sort(np.hstack([mesh.t[ix] for ix in local]), axis=0).astype(np.int64)
+    columns = sorted_columns(np.hstack([mesh.t[ix] for ix in local]).astype(np.int64))
     N = mesh.p.shape[1]
     if float(N) ** columns.shape[0] >= 2.0 ** 63:  # keys would overflow: scikit-fem's way
         return
     key = columns[0]
     for row in columns[1:]:
         key = key * N + row
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    mesh._facets = np.ascontiguousarray(columns[:, first].astype(mesh.t.dtype))
+    ordered, order = sort_with_order(key)
+    new = changes(ordered)
+    inverse = np.empty(key.size, np.int64)
+    inverse[order] = run_numbers(new)
+    mesh._facets = np.take(columns, order[new], axis=1).astype(mesh.t.dtype)  # (take: 5x columns[:, i])
     mesh._t2f = inverse.reshape(len(local), mesh.t.shape[1])
+
+
+def sorted_columns(a):
+    """The columns of an integer array a (m, n) sorted, as np.sort(a, axis=0), by
+    compare-exchanges of its rows (np.sort along the short axis sorts each of the n columns
+    apart: 6x slower for m = 2)."""
+    rows = list(a)
+    for i in range(len(rows) - 1, 0, -1):
+        for j in range(i):
+            rows[j], rows[j + 1] = np.minimum(rows[j], rows[j + 1]), np.maximum(rows[j], rows[j + 1])
+    return np.array(rows)
 
 
 def boundary_facets(mesh):

@@ -119,7 +119,8 @@ class Problem:
         for c, t in zip(self.constraints, self.constraint_terms):
             limit = np.full(t.nel, given[c.name], dtype=float) if c.name in given \
                 else local.get(c.name, np.full(t.nel, np.inf))
-            alpha0 = c.scaling.per_element(limit, centroids(t), t.h)
+            x = centroids(t) if callable(c.scaling.alpha0) else None  # (read by a function alpha0 only)
+            alpha0 = c.scaling.per_element(limit, x, t.h)
             self.limits[c.name], self.alpha0[c.name] = limit, alpha0
             t.alpha0 = alpha0
             # (limit 0: no limit, warned above; theta = -1 is stable for every alpha0)
@@ -157,10 +158,8 @@ class Problem:
             if not energy:
                 raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
                                  "constraint's mesh to bound its multiplier")
-            B = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
-                     f"the multiplier of constraint '{c.name}'", vector=True,
-                     parameters=self.parameters)  # the multiplier's jets only, alpha0 = 1
-            if not any(T.any() for T in B.T):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
+            B = self._multiplier_term(c, like=t)  # the multiplier's jets only, alpha0 = 1
+            if not any(np.asarray(T).any() for T in B.T):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
                 out[c.name] = np.full(t.nel, np.inf)
                 continue
             out[c.name] = local_limits(*multiplier_jacobian(B, c, x), t.cells, free,
@@ -170,14 +169,19 @@ class Problem:
     def _multiplier_on_own_mesh(self, c):
         return all(self.by_name[k].mesh is c.on.mesh for k in c.multiplier_names if k in self.by_name)
 
+    def _multiplier_term(self, c, like=None):
+        """The term of c.scaled_multiplier() (alpha0 = 1 until set) on c's measure, sharing
+        the per-element data of the term `like` there (Term)."""
+        return Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
+                    f"the multiplier of constraint '{c.name}'", vector=True, parameters=self.parameters,
+                    like=like)
+
     def _gram(self, c, alpha0=None):
         """B (free dofs): the Gram matrix of sqrt(alpha/alpha0) D lambda of a constraint, or
-        of sqrt(alpha) D lambda with the given alpha0 per element (a fresh term: the
-        constraint's own may have released its tabulations)."""
+        of sqrt(alpha) D lambda with the given alpha0 per element (a term with data of its
+        own: the constraint's may have released theirs, which reading them would put back)."""
         try:
-            term = Term(c.scaled_multiplier(), c.multiplier_names, c.on, self.fields, self.offsets,
-                        f"the multiplier of constraint '{c.name}'", vector=True,
-                        parameters=self.parameters)
+            term = self._multiplier_term(c)
         except ConstantDensity:  # a given multiplier lambda = q: B = 0
             return None
         if alpha0 is not None:
