@@ -10,7 +10,9 @@ path is solved with SOLVER (direct, gamg or auto).  One row per run is appended 
 (a list): unknowns, ranks (0: serial), set-up and path CPU seconds and the peak resident
 memory (MiB) after the imports, the set-up and the path of each rank, the path's wall
 seconds, per accepted step (time, Newton iterations, energy, cuts), whether a rank's Hessian
-pattern grew (pairings in the current configuration), the load average before and after."""
+pattern grew (pairings in the current configuration), every Newton run of the path, failed
+attempts included (`attempts`: Newton iterations, converged, energy, residual per iterate), the
+load average before and after."""
 import json
 import os
 import resource
@@ -44,6 +46,14 @@ def main(out, name, level, solver, sets):
         problem = DistributedProblem.build(lambda: case.problem(level, case.degrees[0], p), comm)
         local = problem.local
     setup_cpu, after_setup, entries = time.process_time() - c, peak_mib(), local.assembler.nnz
+    attempts, minimize = [], problem.minimize
+
+    def recorded(*args, **kwargs):
+        result = minimize(*args, **kwargs)
+        attempts.append([result.iterations, bool(result.converged), float(result.energy),
+                         [float(r) for r in result.residuals]])
+        return result
+    problem.minimize = recorded
     c, t = time.process_time(), time.perf_counter()
     case.solve(problem, None, solver=solver)
     path_cpu, wall, after_path = time.process_time() - c, time.perf_counter() - t, peak_mib()
@@ -58,6 +68,7 @@ def main(out, name, level, solver, sets):
                setup_peak_mib=each(round(after_setup)), path_peak_mib=each(round(after_path)),
                pattern_grew=each(bool(grew)), converged=bool(problem.path.converged),
                steps=[[s["time"], s["iterations"], s["energy"], s["cuts"]] for s in problem.path.steps],
+               attempts=attempts,
                load_average=[round(a, 2) for a in (load[0], os.getloadavg()[0])])
     if comm is None or comm.rank == 0:
         rows = json.load(open(out)) if os.path.exists(out) else []

@@ -80,6 +80,7 @@ class Sliding(Interface):
         self.X_m = X_m.reshape(p.shape[0], *self.shape)
         self.other_cells = self.segment_cells[self.facet].reshape(self.shape)
         self._other.clear()
+        self._tabulated = {}  # ids of (basis, element) -> (orders, T, dofs) of this pairing
         self.pairings += 1
 
     def tabulation(self, field, orders):
@@ -88,7 +89,8 @@ class Sliding(Interface):
         facet's vertices, the field's values there), the first one signed so that rot(t_1)
         (2D) or t_1 x t_2 (3D) is body 2's outward normal."""
         if getattr(field, "tangents_of", None) is None:
-            return super().tabulation(field, orders)
+            return self._other_tabulation(field, orders) if not self._mine(field) \
+                else super().tabulation(field, orders)
         if field.mesh is not self.other.mesh:
             raise ValueError(f"facet tangents '{field.name}' belong to another body than the one "
                              "this interface is paired with (other=...)")
@@ -104,6 +106,23 @@ class Sliding(Interface):
         slots = np.zeros((E, Q, dim * m, Q, vertices * dim))
         slots[:, np.arange(Q), :, np.arange(Q)] = T.transpose(1, 0, 2, 3)
         return slots.reshape(E, Q, dim * m, -1), np.ascontiguousarray(dofs)
+
+    def _other_tabulation(self, field, orders):
+        """Body 2's tabulation at the paired points, made once per pairing for the fields
+        that share a basis and element (u_2, its previous step's values, its coordinates):
+        the rows of the requested orders are taken from one made for orders it holds."""
+        key = (id(field.dof_basis), id(field.element))  # (the fields keep both alive)
+        made = self._tabulated.get(key)
+        if made is None or not set(orders) <= set(made[0]):
+            wanted = sorted(set(orders) | set(made[0] if made else ()))
+            self._tabulated[key] = made = (wanted, *super().tabulation(field, wanted))
+        made_orders, T, dofs = made
+        sizes = [int(np.prod(s, dtype=int)) for s in self.shapes(field, made_orders)]
+        starts = dict(zip(made_orders, np.cumsum([0] + sizes)))
+        rows = np.concatenate([np.arange(starts[o], starts[o] + sizes[made_orders.index(o)])
+                               for o in orders])
+        return (T if len(rows) == T.shape[2] and np.array_equal(rows, np.arange(T.shape[2]))
+                else np.ascontiguousarray(T[:, :, rows])), dofs
 
     def shapes(self, field, orders):
         if getattr(field, "tangents_of", None) is None:

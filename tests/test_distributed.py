@@ -8,7 +8,7 @@ serial convexified steps; the minimum check runs on distributed vectors (fails a
 passes at minima, gathers nothing); the errors, reports, figures' values and solution.png's
 pictures computed from the ranks' pieces equal the whole problem's (also along the load
 paths of compression, indentation and ironing, whose steps and iterations are the serial
-ones, and friction's solve hook); alpha0's order statistics are exact without gathering;
+ones, and friction's solve hook; ironing's with a cut step on 2 ranks); alpha0's order statistics are exact without gathering;
 PETSc holds no more after each Newton step; the free vectors newton is handed have the
 length of the rank's held free dofs.
 Skipped without petsc4py / mpirun (installed by `make petsc`)."""
@@ -445,3 +445,22 @@ def test_newton_takes_free_vectors_of_the_held_dofs_only(ranks, reference):
             assert r["owned"] <= r["held"] < r["free"], r
             assert r["owned_in_petsc_order"] and r["ghosts_of_other_ranks"], r
             assert r["distinct"] and r["dofs"], r
+
+
+def test_a_path_with_a_cut_step_takes_the_serial_steps_on_two_ranks():
+    """Ironing (level 0, one-pass, three steps down) cuts its last step: on 2 ranks every
+    accepted step, its cuts and Newton iterations are the serial path's (SuperLU), the
+    energies to 1e-10 relative, whatever the failed attempt did (the retry starts from the
+    accepted solution and its pairing; docs/distributed.md, session 25)."""
+    spec = "ironing:0:steps_down=3,contact=one-pass"
+    case = cases.get("ironing")
+    p = case.parameters({"steps_down": "3", "contact": "one-pass"})
+    problem = case.problem(0, case.degrees[0], p)
+    case.solve(problem, None, solver="superlu")
+    serial = [[s["time"], s["iterations"], s["energy"], s["cuts"]] for s in problem.path.steps]
+    assert problem.path.cuts >= 1, serial
+    r = json.loads(mpirun(2, str(ROOT / "tests" / "mpi_path_cuts.py"), spec).strip().splitlines()[-1])
+    assert sum(not ok for _, ok in r["attempts"]) == problem.path.cuts, r
+    steps = r["steps"]
+    assert [s[:2] + s[3:] for s in steps] == [s[:2] + s[3:] for s in serial], (steps, serial)
+    assert all(abs(s[2] - t[2]) <= 1e-10 * abs(t[2]) for s, t in zip(steps, serial)), (steps, serial)

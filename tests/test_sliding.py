@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import nitsche as ni
-from nitsche import assembly
+from nitsche import assembly, measures
 from nitsche.cases import get
+from nitsche.measures import tabulate_at
 from nitsche.projection import closest_facets
 from nitsche.sliding import HYSTERESIS
 from sliding_checks import jacobian_against_finite_differences
@@ -106,6 +107,31 @@ def test_a_failed_attempts_pairing_is_put_back_before_the_retry(ironing):
     problem.update_pairing(x)
     assert all((problem.paired_facets()[i] == accepted[i]).all() for i in accepted)
     assert problem.energy(x) == E
+
+
+def test_the_other_body_is_tabulated_once_per_pairing(ironing, monkeypatch):
+    """u_2, its previous step's values and its coordinates share one tabulation at the paired
+    points per pairing (the rows of the orders each reads), equal bit for bit to the one
+    made for each alone (measures.Interface.tabulation); the next pairing tabulates anew."""
+    case, p, problem, path, _ = ironing
+    measure, x = problem.constraints[0].on, path.results[-1].x
+    made = []
+    monkeypatch.setattr(measures, "tabulate_at", lambda *a: made.append(a[1]) or tabulate_at(*a))
+    problem.update_pairing(x)
+    assert made == [[0, 1]], made  # u2 [0, 1], u2_old [0, 1], X_u2 [0]: one tabulation
+    reads = [("u2", [0, 1]), ("u2_old", [0, 1]), ("X_u2", [0]), ("u2", [1]), ("u2", [1, 0])]
+    for name, orders in reads:
+        f = problem.by_name[name]
+        T, dofs = measure.tabulation(f, orders)
+        T0, dofs0 = measures.Interface.tabulation(measure, f, orders)
+        assert T.shape == T0.shape and np.array_equal(T, T0) and np.array_equal(dofs, dofs0), (name, orders)
+    assert made[1:] == [o for _, o in reads]  # the references only
+    made.clear()
+    parts = problem.split(x)
+    measure.pair(parts["u1"], parts["u2"])  # a new pairing; an order not yet made extends it
+    for name, orders in [("X_u2", [0]), ("u2", [0, 1]), ("u2_old", [1])]:
+        measure.tabulation(problem.by_name[name], orders)
+    assert made == [[0], [0, 1]], made
 
 
 def test_newton_converges_quadratically_once_the_pairing_settles(ironing):
