@@ -258,15 +258,8 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         x = lifted(problem, x0, x, lin)
         timings["lift"] = time.perf_counter() - t
     problem.check_finite(x)  # a NaN gap, multiplier or scaling: an error that names it
-    E0, g0 = problem.assembler.gradient(x)
-    if not (np.isfinite(E0) and np.all(np.isfinite(g0))):
-        raise ValueError(f"J_h or its gradient is not finite at the initial guess (J_h = {E0}): "
-                         f"{problem.non_finite(x)}; check the densities (log, sqrt, division) "
-                         "and the initial guess x0")
     x_ref = with_free(problem, problem.initial(np.zeros(problem.ndofs)), 0.0)
-    ref = residual_scale(problem, x_ref, rtol)
-    if ref is None:  # e.g. a density undefined at zero, or nothing but zeros: scale by x0
-        ref = norm(problem, free_part(problem, g0)) or 1.0
+    ref = residual_scale(problem, x_ref, rtol)  # None: scaled by the initial gradient (below)
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
     shift, shifts = SHIFT_START, []  # inertia correction: the next shift, and those taken
     for it in range(maxiter + 1):
@@ -276,6 +269,12 @@ def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=Non
         A = M = None  # the last step's matrices are not held through this assembly
         E, g, A = problem.newton_system(x)
         timings["assembly"] += time.perf_counter() - t
+        if it == 0 and not (np.isfinite(E) and np.all(np.isfinite(g))):
+            raise ValueError(f"J_h or its gradient is not finite at the initial guess (J_h = {E}): "
+                             f"{problem.non_finite(x)}; check the densities (log, sqrt, division) "
+                             "and the initial guess x0")
+        if ref is None:  # e.g. a density undefined at zero, or nothing but zeros: scale by x0
+            ref = norm(problem, g) or 1.0
         if not np.isfinite(E) or not np.all(np.isfinite(g)):
             reason = (f"J_h or its gradient became non-finite at iteration {it} "
                       f"(largest |x| {np.abs(x).max():.3g}; {problem.non_finite(x)}): {UNBOUNDED}")
