@@ -334,8 +334,8 @@ class Term:
         # per-point data on the device (Chunked); x and n None where the term keeps none
         given = dict(W=lambda: W, h=lambda: np.asarray(measure.h, dtype=float),
                      x=lambda: np.moveaxis(measure.points, 0, -1), n=lambda: np.moveaxis(measure.normals, 0, -1))
-        kept = dict(W=True, h=True, x="x" in names or keep_points, n=self.has_normal)
-        self.data = {k: None if not kept[k] else like.data[k] if like is not None and like.data[k] is not None
+        held = dict(W=True, h=True, x="x" in names or keep_points, n=self.has_normal)
+        self.data = {k: None if not held[k] else like.data[k] if like is not None and like.data[k] is not None
                      else self._chunked(given[k]()) for k in given}
         self.cells = measure.cells  # the cell of measure.mesh that owns each element
         self._alpha0 = None  # per-element data of constraint terms (functional.ALPHA0): 1 until set

@@ -65,10 +65,13 @@ class Cholmod:
         try:
             if self.analyzed is None or not self.analyzed.holds(A):
                 self.analyzed = NonzeroPattern(A, self.analyzed)
-                self.factor = analyze(self.analyzed.part(A), ordering_method=self.ordering)
+                self.factor = None
+            given = self.analyzed.part(A)
+            if self.factor is None:
+                self.factor = analyze(given, ordering_method=self.ordering)
                 self.analyses += 1
             self.factored = None
-            self.factor.cholesky_inplace(self.analyzed.part(A))
+            self.factor.cholesky_inplace(given)
         except CholmodNotPositiveDefiniteError as e:
             raise IndefiniteHessian(str(e))
         if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
@@ -122,8 +125,7 @@ class NonzeroPattern:
     def __init__(self, A, before=None):
         self.indptr, self.indices = A.indptr, A.indices
         kept = A.data != 0
-        rows, columns = A.indices, np.repeat(np.arange(A.shape[1]), np.diff(A.indptr))
-        kept |= rows == columns
+        kept |= A.indices == column_indices(A)
         if before is not None and before.same_pattern(A):
             kept |= before.kept
         self.kept, self.all = kept, bool(kept.all())
@@ -144,6 +146,11 @@ class NonzeroPattern:
             return A
         return sp.csc_matrix((A.data[self.kept], self.kept_indices, self.kept_indptr),
                              shape=A.shape, copy=False)
+
+
+def column_indices(A):
+    """The column of every stored entry of a CSC matrix (its row: A.indices)."""
+    return np.repeat(np.arange(A.shape[1]), np.diff(A.indptr))
 
 
 def kept_values(A):
@@ -176,7 +183,7 @@ def semidefinite_difference(A, F, zero=False):
         return changed.size == 0
     if changed.size > A.data.size // 16:
         return False
-    columns = np.repeat(np.arange(A.shape[1]), np.diff(A.indptr))[changed]
+    columns = column_indices(A)[changed]
     rows = A.indices[changed]
     S, local = np.unique(np.concatenate([rows, columns]), return_inverse=True)
     D = sp.csc_matrix((A.data[changed] - F.data[changed], (local[:rows.size], local[rows.size:])),

@@ -118,9 +118,8 @@ class Sliding(Interface):
             self._tabulated[key] = made = (wanted, *super().tabulation(field, wanted))
         made_orders, T, dofs = made
         sizes = [int(np.prod(s, dtype=int)) for s in self.shapes(field, made_orders)]
-        starts = dict(zip(made_orders, np.cumsum([0] + sizes)))
-        rows = np.concatenate([np.arange(starts[o], starts[o] + sizes[made_orders.index(o)])
-                               for o in orders])
+        spans = {o: (start, start + size) for o, start, size in zip(made_orders, np.cumsum([0] + sizes), sizes)}
+        rows = np.concatenate([np.arange(*spans[o]) for o in orders])
         return (T if len(rows) == T.shape[2] and np.array_equal(rows, np.arange(T.shape[2]))
                 else np.ascontiguousarray(T[:, :, rows])), dofs
 
