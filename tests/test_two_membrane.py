@@ -86,7 +86,12 @@ def test_condition_number_dense_and_sparse_agree():
     sparse = condition_number(A, dense_limit=10)
     assert dense["method"].startswith("dense") and sparse["method"].startswith("ARPACK")
     assert abs(dense["cond"] / exact - 1) < 1e-8
-    assert abs(sparse["cond"] / exact - 1) < 1e-4
+    # lambda_max from ARPACK at a relative residual of TOL_MAX = 1e-3: a Ritz value, a lower
+    # bound within 2e-4 (here 8e-5: the top of this spectrum clusters as a stiffness matrix's)
+    top = dense["lambda_max"]
+    assert top * (1 - 2e-4) < sparse["lambda_max"] <= top * (1 + 1e-12)
+    assert abs(sparse["cond"] / exact - 1) < 2e-4
+    assert abs(condition_number(A, dense_limit=10, tol_max=1e-6)["cond"] / exact - 1) < 1e-6
     B = A + sp.diags([0.5 * np.ones(n - 1)], [1])  # non-symmetric: singular values
     assert abs(condition_number(B, dense_limit=10)["cond"] / condition_number(B, dense_limit=n)["cond"]
                - 1) < 1e-4
@@ -101,7 +106,7 @@ def test_condition_number_of_an_indefinite_matrix_without_a_cholesky_factor():
     B = A - sp.identity(n, format="csr") * 1.5  # symmetric, indefinite: ARPACK's own LU
     sparse, dense = condition_number(B, dense_limit=10), condition_number(B, dense_limit=n)
     assert "Cholesky" not in sparse["method"]
-    assert abs(sparse["cond"] / dense["cond"] - 1) < 1e-4
+    assert abs(sparse["cond"] / dense["cond"] - 1) < 2e-4  # lambda_max to TOL_MAX (see above)
     assert abs(sparse["lambda_min"] / dense["lambda_min"] - 1) < 1e-4
 
 
