@@ -89,3 +89,14 @@ def test_cholmod_factors_the_nonzero_entries_and_analyzes_again_only_when_they_g
     # CG preconditioned by the kept factor on a matrix of the same pattern
     z = lin.solve(A2, b, rtol=1e-10)
     assert np.linalg.norm(A2 @ z - b) <= 1e-10 * np.linalg.norm(b) and lin.analyses == 2
+
+
+def test_2d_problems_are_ordered_by_amd_below_the_metis_threshold_and_by_metis_above():
+    from nitsche.linalg import METIS_THRESHOLD_2D, make_solver
+    assert make_solver("cholmod", METIS_THRESHOLD_2D, dim=2).ordering == "amd"
+    assert make_solver("auto", METIS_THRESHOLD_2D + 1, dim=2).ordering == "metis"
+    assert make_solver("cholmod", 1000, dim=3).ordering == "default"
+    A = laplacian(30)  # METIS's ordering solves as AMD's does
+    b = np.arange(A.shape[0], dtype=float)
+    x = {o: Cholmod(ordering=o).solve(A, b) for o in ("amd", "metis")}
+    assert np.allclose(x["metis"], x["amd"], rtol=1e-12, atol=1e-12)
