@@ -4,9 +4,11 @@ scatter of element matrices into it by blocks.
 The dofs fall into groups: runs of consecutive dofs that every element holds together,
 in consecutive local positions (a vector Lagrange field's components at a node; a
 scalar field's dofs are groups of one).  The pattern is built on the groups, from the
-pairs (g, h) of groups that share an element (one sort of the E r^2 group pairs of E
-elements of r groups each, instead of the E k^2 entries of their k x k matrices), then
-expanded: every dof row of group g holds the columns of every group h of row g, so a
+pairs (g, h) of groups that share an element: the pattern of sum_m B_m^T B_m, B_m the
+element-group incidence of map m (E elements of r groups each: E r^2 pairs, not the
+E k^2 entries of their k x k matrices; SciPy's sparse product, whose memory is that of
+its result, not of the pairs); each pair's position in it is then found block by block
+of elements.  Then the group pattern is expanded: every dof row of group g holds the columns of every group h of row g, so a
 vector field's pattern is its node pattern with full b x b blocks and no structurally
 zero blocks.
 
@@ -20,8 +22,10 @@ a group have one length (its stride), so the entry (j, l) is at
     P[run(j), run(l)] + (j - first(run(j))) stride(run(j)) + (l - first(run(l))).
 """
 import numpy as np
+import scipy.sparse as sp
 
 CHUNK = 2 ** 20  # element-matrix entries scattered per call
+KEYS_PER_BLOCK = 2 ** 22  # group pairs located per search (pair_positions)
 
 
 def index_type(*sizes):
@@ -62,19 +66,49 @@ def run_numbers(starts, dtype=np.int64):
     return rank
 
 
-def csr_pattern(keys, n):
-    """The CSR pattern (indptr, indices) of an n x n matrix with entries at the keys
-    row * n + column (repeated keys: one entry), and each key's position in it: one sort
-    of the keys.  Index arrays are int32 while they fit."""
+def distinct(keys, dtype=np.int64):
+    """(the distinct keys, sorted; the index of each key among them, in `dtype`): one sort."""
     ordered, order = sort_with_order(keys)
     new = changes(ordered)
-    rows, columns = np.divmod(ordered[new], n)
-    index = index_type(rows.size, n)
-    position = np.empty(keys.size, index)
-    position[order] = run_numbers(new, index)
-    indptr = np.zeros(n + 1, index)
-    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
-    return indptr, columns.astype(index), position
+    inverse = np.empty(keys.size, dtype)
+    inverse[order] = run_numbers(new, dtype)
+    return ordered[new], inverse
+
+
+def group_pattern(groups, G, keep=None):
+    """The CSR pattern (indptr, indices) on G groups of the pairs (g, h) of groups that share
+    an element of some map: the pattern of sum_m B_m^T B_m, B_m (E, G) the incidence of
+    the elements' groups `groups` = [g_m (E, r)]; with the pairs `keep` = (rows, columns)
+    (of an earlier pattern) added.  Index arrays are int32 while they fit."""
+    S = sp.csr_matrix((G, G), dtype=np.float32)
+    for g in groups:
+        E, r = g.shape
+        B = sp.csr_matrix((np.ones(E * r, np.float32), g.ravel(), np.arange(0, E * r + 1, r)), shape=(E, G))
+        S = S + (B.T @ B).tocsr()  # (entries: counts >= 1, none cancels)
+    if keep is not None:
+        rows, columns = keep
+        S = S + sp.csr_matrix((np.ones(rows.size, np.float32), (rows, columns)), shape=(G, G))
+    S.sort_indices()
+    index = index_type(S.nnz, G)
+    return S.indptr.astype(index), S.indices.astype(index)
+
+
+def pair_positions(g, held, G, index):
+    """The position in the group pattern, whose entries have the sorted keys `held` = g * G + h,
+    of every pair of groups of the elements g (E, r): (E, r, r) in `index`, or None when the
+    pattern lacks one; by blocks of elements, each block's distinct pairs located by one
+    search (its pairs are not all held at once)."""
+    E, r = g.shape
+    position = np.empty((E, r, r), index)
+    step = max(1, KEYS_PER_BLOCK // max(r * r, 1))
+    for s in range(0, E, step):
+        b = g[s:s + step].astype(np.int64)
+        keys, rank = distinct((b[:, :, None] * G + b[:, None, :]).ravel(), index_type(b.size * r))
+        where = np.minimum(np.searchsorted(held, keys), max(held.size - 1, 0))
+        if held.size == 0 or not np.array_equal(held[where], keys):
+            return None
+        position[s:s + step] = where.astype(index)[rank].reshape(b.shape[0], r, r)
+    return position
 
 
 def dof_groups(maps, n):
@@ -121,19 +155,15 @@ class Pattern:
         self.start = np.flatnonzero(np.diff(self.group, prepend=-1)).astype(self.group.dtype)  # of each group
         size = np.diff(np.append(self.start, n))
         firsts = [runs(D, self.group) for D in maps]
-        keys = [self._pair_keys(D, f) for D, f in zip(maps, firsts)]
-        sizes = [k.size for k in keys]
         if keep is not None:
-            rows = np.repeat(np.arange(n), np.diff(keep[0]))
-            keys.append(self.group[rows] * np.int64(G) + self.group[keep[1]])
-        keys = np.concatenate(keys) if keys else np.zeros(0, np.int64)  # one copy kept
-        self.group_indptr, self.group_indices, position = csr_pattern(keys, G)
-        del keys
+            keep = (self.group[np.repeat(np.arange(n), np.diff(keep[0]))], self.group[keep[1]])
+        self.group_indptr, self.group_indices = group_pattern(
+            [self.group[D[:, f]] for D, f in zip(maps, firsts)], G, keep)
         if G == n:  # groups of one dof: the group pattern is the pattern
             self.indptr, self.indices = self.group_indptr, self.group_indices
             self.nnz = self.indices.size
             self.offset = None  # of every group entry: 0
-            self.scatters = self._scatters(maps, firsts, position, sizes)
+            self.scatters = [self.scatter(D, f) for D, f in zip(maps, firsts)]
             return
         # each group entry (g, h): its first column within the dof rows of g, and their length
         width = size[self.group_indices]
@@ -151,12 +181,7 @@ class Pattern:
         self.indices = columns[np.repeat(row_start[self.group] - self.indptr[:-1], length)
                                + np.arange(nnz, dtype=index)]
         self.nnz = nnz
-        self.scatters = self._scatters(maps, firsts, position, sizes)
-
-    def _scatters(self, maps, firsts, position, sizes):
-        """The Scatter of each map from the positions of its group pairs (sizes of each)."""
-        return [Scatter(self, D, f, p) for D, f, p in
-                zip(maps, firsts, np.split(position[:sum(sizes)], np.cumsum(sizes)[:-1]))]
+        self.scatters = [self.scatter(D, f) for D, f in zip(maps, firsts)]
 
     @property
     def nbytes(self):
@@ -165,22 +190,14 @@ class Pattern:
                                    self.group_indptr, self.group_indices) if a is not None}
         return sum(a.nbytes for a in kept.values()) + sum(s.nbytes for s in self.scatters)
 
-    def _pair_keys(self, D, first):
-        """row * G + column of the group pairs of every element of the map D, (E, r, r) raveled."""
-        G = np.int64(self.start.size)
-        g = self.group[D[:, first]].astype(np.int64)
-        return (g[:, :, None] * G + g[:, None, :]).ravel()
-
-    def scatter(self, D):
-        """The Scatter of the map D if the pattern holds all of its entries, else None."""
-        first = runs(D, self.group)
-        keys = self._pair_keys(D, first)
+    def scatter(self, D, first=None):
+        """The Scatter of the map D if the pattern holds all of its entries, else None
+        (first: the first local column of each run of D, runs(D, group))."""
+        first = runs(D, self.group) if first is None else first
         G = np.int64(self.start.size)
         held = np.repeat(np.arange(G), np.diff(self.group_indptr)) * G + self.group_indices
-        position = np.minimum(np.searchsorted(held, keys), held.size - 1)
-        if held.size == 0 or not np.array_equal(held[position], keys):
-            return None
-        return Scatter(self, D, first, position)
+        position = pair_positions(self.group[D[:, first]], held, G, self.group_indptr.dtype)
+        return None if position is None else Scatter(self, D, first, position)
 
 
 class Scatter:
@@ -196,7 +213,7 @@ class Scatter:
         lead = D[:, first]
         position = position.reshape(E, first.size, first.size)
         if pattern.offset is None:  # groups of one dof: the group pattern's positions are these
-            self.P = position.astype(index)  # (a copy: not a view that keeps all maps' positions)
+            self.P = position.astype(index, copy=False)
         else:
             self.P = (pattern.indptr[lead][:, :, None] + pattern.offset[position]
                       + (lead - pattern.start[pattern.group[lead]])[:, None, :]).astype(index)

@@ -164,3 +164,24 @@ def test_quadratic_terms_on_their_own_entries_add_as_full_length_arrays(name, se
     np.testing.assert_array_equal(data, data_ref)
     np.testing.assert_array_equal(grad, grad_ref)
     assert E == E_ref
+
+
+@pytest.mark.parametrize("name, sets", [("two-membrane", {}), ("membrane-solid", {"cells": "tet"})])
+def test_pair_positions_by_small_blocks_of_elements_equal_those_of_one_block(name, sets, monkeypatch):
+    """pair_positions locates the group pairs block by block of elements: blocks of one
+    element (7 // 36 pairs, an earlier pattern kept) give the pattern and every scatter's
+    positions of blocks larger than all the pairs."""
+    import nitsche.pattern as pattern
+    case = get(name)
+    problem = case.problem(1, 1, case.parameters(sets))
+    maps = [t.global_dofs for t in problem.assembler.terms]
+    n = problem.ndofs
+    keep = entrywise([np.array([[0, n - 1]])], n)
+    whole = Pattern(maps, n, keep=(keep.indptr, keep.indices))
+    monkeypatch.setattr(pattern, "KEYS_PER_BLOCK", 7)
+    blocks = Pattern(maps, n, keep=(keep.indptr, keep.indices))
+    assert blocks.indptr.tolist() == whole.indptr.tolist()
+    assert blocks.indices.tolist() == whole.indices.tolist()
+    assert whole.indices[whole.indptr[0]:whole.indptr[1]][-1] == n - 1  # the kept entry
+    for a, b in zip(blocks.scatters, whole.scatters):
+        assert np.array_equal(a.positions(), b.positions())

@@ -43,9 +43,10 @@ def test_fixed_dofs_as_scikit_fem(mesh, element):
         assert np.array_equal(f.fixed_dofs, np.unique(np.concatenate([d.all("u^3"), x])))
 
 
-def test_run_numbers_and_csr_pattern():
-    """run_numbers is cumsum - 1 in the dtype asked; csr_pattern's positions locate each key."""
-    from nitsche.pattern import csr_pattern, run_numbers
+def test_run_numbers_distinct_and_group_pattern():
+    """run_numbers is cumsum - 1 in the dtype asked; distinct gives np.unique's keys and
+    inverse; group_pattern the pairs of groups sharing an element (and the kept pairs)."""
+    from nitsche.pattern import distinct, group_pattern, run_numbers
     starts = np.random.default_rng(1).random(10000) < 0.3
     starts[0] = True
     for dtype in (np.int32, np.int64):
@@ -53,10 +54,14 @@ def test_run_numbers_and_csr_pattern():
         assert r.dtype == dtype and np.array_equal(r, np.cumsum(starts) - 1)
     n = 50
     keys = np.random.default_rng(2).integers(0, n * n, 4000, dtype=np.int64)
-    indptr, indices, position = csr_pattern(keys, n)
+    d, inverse = distinct(keys, np.int32)
+    assert np.array_equal(d, np.unique(keys)) and np.array_equal(d[inverse], keys)
+    g = np.random.default_rng(3).integers(0, n, (30, 3))
+    keep = (np.array([0, 7]), np.array([49, 7]))
+    indptr, indices = group_pattern([g, g[:5, :2]], n, keep)
     rows = np.repeat(np.arange(n), np.diff(indptr))
-    assert np.array_equal(rows * n + indices, np.unique(keys))
-    assert np.array_equal((rows * n + indices)[position], keys)
+    pairs = np.concatenate([(g[:, :, None] * n + g[:, None, :]).ravel(), keep[0] * n + keep[1]])
+    assert indices.dtype == np.int32 and np.array_equal(rows * n + indices, np.unique(pairs))
 
 
 @pytest.mark.parametrize("mesh", sorted(MESHES))
