@@ -58,7 +58,7 @@ from .pattern import Pattern
 CHUNK_POINTS = (2 ** 10, 2 ** 15)
 # A term's last call takes a smaller rung than the small chunk (last_call) only where the
 # padding it saves, in points x (local dofs)^2 (the Hessian kernel's contraction, about 7 ns
-# each: an ironing contact term's call of 336 elements, 3 points, 100 dofs, 70 ms), is at
+# each: an ironing contact term's call of 336 elements, 3 points, 100 dofs, 67 ms), is at
 # least this: each rung is a kernel shape per kind to load once per process (0.02 s CPU
 # from kernel_store), which the chains' coarse levels of small elements did not win back
 # (docs/performance.md, "Small terms' kernel calls (session 26)").
