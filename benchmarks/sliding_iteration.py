@@ -11,7 +11,8 @@ Each piece is run once (compiled kernels, caches) and then timed over REPEATS ru
 per rank is appended to OUT.json (a list): ranks (0: serial), rank, unknowns, the sliding
 interfaces' points and elements on the rank, milliseconds of CPU per piece, per term its
 elements, the elements its kernel calls take (the padded chunks) and milliseconds per
-Hessian call, and the load average."""
+Hessian call, the sizes of its calls, the seconds this process spent compiling or loading
+kernels (assembly.compile_seconds: the kernel store warm, loading) and the load average."""
 import json
 import os
 import sys
@@ -19,7 +20,7 @@ import time
 
 import numpy as np
 
-from nitsche import cases
+from nitsche import assembly, cases
 from nitsche.distributed import launched_by_mpirun
 
 
@@ -59,8 +60,9 @@ def main(out, level, repeats):
                ms=dict(update_pairing=ms(lambda: problem.update_pairing(x)), pair=ms(pair),
                        evaluate=ms(lambda: a.evaluate(x)), gradient=ms(lambda: a.gradient(x))),
                terms=[dict(elements=t.nel, called=sum(n for _, n in t.blocks(t.nel)),
+                           calls=[n for _, n in t.blocks(t.nel)],
                            hessian_ms=ms(lambda t=t: list(t.calls("full", x)))) for t in a.terms],
-               load_average=round(os.getloadavg()[0], 2))
+               kernel_seconds=round(assembly.compile_seconds[0], 3), load_average=round(os.getloadavg()[0], 2))
     rows = [row] if comm is None else comm.gather(row, root=0)
     if comm is None or comm.rank == 0:
         old = json.load(open(out)) if os.path.exists(out) else []

@@ -56,6 +56,13 @@ from .pattern import Pattern
 # so runs on coarse meshes with many Newton steps paid far more (compression --level 0:
 # 4.2 -> 14.5 s CPU; block-friction 3.2 -> 4.1 s); 2^14 alone has the same padding.
 CHUNK_POINTS = (2 ** 10, 2 ** 15)
+# A term's last call takes a smaller rung than the small chunk (last_call) only where the
+# padding it saves, in points x (local dofs)^2 (the Hessian kernel's contraction, about 7 ns
+# each: an ironing contact term's call of 336 elements, 3 points, 100 dofs, 67 ms), is at
+# least this: each rung is a kernel shape per kind to load once per process (0.02 s CPU
+# from kernel_store), which the chains' coarse levels of small elements did not win back
+# (docs/performance.md, "Small terms' kernel calls (session 26)").
+RUNG_WORTH = 2 ** 20
 _COMPILED = {}
 _ALIVE = {}  # id -> object: an identity key stays valid while the object lives
 compile_seconds = [0.0]  # compilation time spent in this process
@@ -163,10 +170,20 @@ def elements_per_call(points, nq):
     return n - n % 8 if n >= 8 else n
 
 
+def last_call(n, small):
+    """Elements of a term's last call for the n < small elements left: the least rung of
+    8, 16, 32, ... (powers of two below small) and small that holds them (at least one
+    element): each rung is one kernel shape more to load once per process."""
+    rung = 8
+    while rung < max(n, 1) and 2 * rung < small:
+        rung *= 2
+    return rung if rung >= n and rung < small else small
+
+
 def _pad(a, n):
     """Pad axis 0 to length n by repeating the last entry, or zeros for a term without
-    elements on this rank (results for the padding are discarded); only the last (small)
-    chunk of a term is padded."""
+    elements on this rank (results for the padding are discarded); only the last call of
+    a term is padded."""
     if a.shape[0] == n:
         return a
     if a.shape[0] == 0:
@@ -308,8 +325,12 @@ class Term:
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
         # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
         self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
-        for (name, parts, _) in self.layout:
-            T, dofs = measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
+        tabulations = [measure.tabulation(by_name[name], [o for o, _, _, _ in parts])
+                       for (name, parts, _) in self.layout]
+        k = sum(dofs.shape[1] for _, dofs in tabulations)  # local dofs
+        self.element_work = like.element_work if like is not None else self.nq * k ** 2
+        while tabulations:  # (each host tabulation dropped once stored)
+            T, dofs = tabulations.pop(0)
             mapped = isinstance(T, Mapped)
             # jet components that vanish identically (e.g. P1 Hessians) are left out of the
             # differentiation and enter the density as exact zeros
@@ -595,13 +616,20 @@ class Term:
 
     def blocks(self, nel):
         """(start, size) of the kernel calls over nel elements: calls of the large chunk while
-        a whole one is left, then calls of the small one, so that at most one small chunk is
-        padded (a term of 1.1 large chunks is not padded to 2, nor one of 2 small ones to a
-        large one); no elements: one padded small call, no rows."""
+        a whole one is left, then calls of the small one while a whole one is left, then one
+        call of the small chunk, or of the least rung that holds the rest (last_call) where
+        that saves padding worth a kernel shape (RUNG_WORTH), so that a term of 1.1 large
+        chunks is not padded to 2, nor an ironing contact term of 24 elements to 336; no
+        elements: one padded call, no rows."""
         small, large = self.chunks
         whole = nel // large * large if large > small else 0
-        return [(s, large) for s in range(0, whole, large)] + \
-            [(s, small) for s in range(whole, max(nel, whole + 1), small)]
+        calls = [(s, large) for s in range(0, whole, large)]
+        calls += [(s, small) for s in range(whole, nel - small + 1, small)]
+        rest = calls[-1][0] + calls[-1][1] if calls else 0
+        if nel == rest and calls:
+            return calls
+        rung = last_call(nel - rest, small)
+        return calls + [(rest, rung if (small - rung) * self.element_work >= RUNG_WORTH else small)]
 
     def calls(self, kind, x, elements=None):
         """Apply a kernel to all elements (or to the given ones) for the global dof vector x,
