@@ -525,13 +525,22 @@ class KrylovSolver:
             ksp.setType("preonly")
             pc.setType("cholesky" if dp.local.symmetric else "lu")
             pc.setFactorSolverType("mumps")
-            if dp.local.symmetric and dp.ranks > 1:
-                count_root_pivots()
         else:
             ksp.setType("preonly")
             pc.setType("redundant")  # PCREDUNDANT's own solver: LU
         self.ksp, self.kind, self.iterations = ksp, name, []
-        self.minimum_checks = []  # lowest_eigenvalue's estimate and steps, per check
+        self.minimum_checks = []  # per check: lowest_eigenvalue's estimate and steps, or the negative pivots
+
+    def configure(self):
+        """PETSc's options applied (last), then for MUMPS's L D L^T on several ranks
+        ICNTL(13) = 1 unless the options set it: the root front factored by MUMPS rather than
+        ScaLAPACK, so that INFOG(12) counts its negative pivots too (is_positive_definite)."""
+        from petsc4py import PETSc
+        self.ksp.setFromOptions()
+        pc, options = self.ksp.getPC(), PETSc.Options()
+        if (self.dp.ranks > 1 and pc.getType() == "cholesky" and pc.getFactorSolverType() == "mumps"
+                and not options.hasName("mat_mumps_icntl_13")):
+            options.setValue("mat_mumps_icntl_13", 1)
 
     def prepare(self, problem):
         """The near-nullspace of GAMG: rigid-body modes of the vector fields, constants."""
@@ -552,7 +561,7 @@ class KrylovSolver:
             raise IndefiniteHessian(fault)
         if self.kind == "gamg":
             self.ksp.setTolerances(rtol=max(rtol, self.rtol))
-        self.ksp.setFromOptions()
+        self.configure()
         x = self.dp.layout.vector()
         self.ksp.solve(self.dp.layout.vector(b), x)
         reason = self.ksp.getConvergedReason()
@@ -580,7 +589,7 @@ class KrylovSolver:
         if diagonal_fault(A.mat):
             return False
         self.ksp.setOperators(A.mat)
-        self.ksp.setFromOptions()
+        self.configure()
         self.ksp.setUp()
         F = self.symmetric_factor()
         if F is not None:
@@ -616,16 +625,6 @@ class KrylovSolver:
                     lobpcg_steps=[c["steps"] for c in self.minimum_checks if "steps" in c],
                     negative_pivots=[c["negative_pivots"] for c in self.minimum_checks
                                      if "negative_pivots" in c])
-
-
-def count_root_pivots():
-    """MUMPS's ICNTL(13) = 1 unless PETSc's options set it: the root front factored by MUMPS
-    rather than ScaLAPACK on several ranks, so that INFOG(12) counts its negative pivots
-    too (KrylovSolver.is_positive_definite)."""
-    from petsc4py import PETSc
-    options = PETSc.Options()
-    if not options.hasName("mat_mumps_icntl_13"):
-        options.setValue("mat_mumps_icntl_13", 1)
 
 
 def reason_name(reason):
