@@ -26,8 +26,9 @@ divided among the ranks; the meshes stay whole on every rank.
   surface (ghosts: the current surface and any cell a pairing reaches), and a pairing that
   grows a rank's pattern gives every rank a new PETSc matrix on the grown one;
 - the whole free vector is all-gathered for the result (once per solve); the minimum check
-  at convergence is LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the
-  preconditioner and reductions of a few numbers); the constraint report is the serial
+  at convergence is the inertia of MUMPS's L D L^T ('direct' where PETSc has MUMPS), else
+  LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the preconditioner and
+  reductions of a few numbers); the constraint report is the serial
   engine's (problem.report_constraints) on each rank's elements, combined from a few
   numbers per rank (alpha0's medians by a distributed selection, order_statistics);
 - petsc4py keeps the parallel PETSc objects Python drops until PETSc.garbage_cleanup:
