@@ -31,21 +31,29 @@ system-deps:
 	fi
 
 # The distributed engine (mpirun -n N nitsche run CASE; nitsche.distributed): Debian's Open MPI,
-# then mpi4py, pymetis, and PETSc + petsc4py built from PyPI's sources against that MPI (about
-# 5 minutes each on 2 cores); the tests in tests/test_distributed.py run once this is installed.
-PETSC_CONFIGURE_OPTIONS ?= --with-debugging=0 --with-fc=0 --with-x=0
+# MUMPS 5.5 and ScaLAPACK (built against that Open MPI; gfortran links their Fortran runtime),
+# then mpi4py, pymetis, and PETSc + petsc4py built from PyPI's sources against them (about
+# 5 minutes each on 2 cores; never a cached wheel, which may lack MUMPS); the tests in
+# tests/test_distributed.py run once this is installed.  MUMPS makes `--solver direct` a
+# factorization divided among the ranks (without it every rank factors the whole matrix).
+MPI_PACKAGES = libopenmpi-dev openmpi-bin patchelf gfortran libmumps-dev libscalapack-openmpi-dev
+PETSC_CONFIGURE_OPTIONS ?= --with-debugging=0 --with-fortran-bindings=0 --with-x=0 \
+  --with-mumps-include=/usr/include --with-mumps-lib=[-ldmumps,-lmumps_common,-lpord] \
+  --with-scalapack-lib=-lscalapack-openmpi
 PETSC_VERSION ?= 3.26.1
 $(VENV)/.petsc-installed: $(VENV)/.installed
-	@if ! command -v mpicc >/dev/null 2>&1 || ! command -v patchelf >/dev/null 2>&1; then \
+	@if ! command -v mpicc >/dev/null 2>&1 || ! command -v mpifort >/dev/null 2>&1 || \
+	   ! command -v patchelf >/dev/null 2>&1 || [ ! -f /usr/include/dmumps_c.h ] || \
+	   ! ls /usr/lib/*/libscalapack-openmpi.so >/dev/null 2>&1; then \
 	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO="sudo -n"; \
-	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libopenmpi-dev openmpi-bin patchelf >/dev/null; \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq $(MPI_PACKAGES) >/dev/null; \
 	fi
 	$(PIP) install -q cython numpy "setuptools>=68" wheel
-	MPICC=mpicc MPICXX=mpicxx PETSC_CONFIGURE_OPTIONS="$(PETSC_CONFIGURE_OPTIONS)" \
-	  $(PIP) install -q --no-build-isolation petsc==$(PETSC_VERSION)
-	MPICC=mpicc $(PIP) install -q --no-build-isolation petsc4py==$(PETSC_VERSION)
+	MPICC=mpicc MPICXX=mpicxx MPIFORT=mpifort PETSC_CONFIGURE_OPTIONS="$(PETSC_CONFIGURE_OPTIONS)" \
+	  $(PIP) install -q --no-build-isolation --no-cache-dir --force-reinstall --no-deps petsc==$(PETSC_VERSION)
+	MPICC=mpicc $(PIP) install -q --no-build-isolation --no-cache-dir --force-reinstall --no-deps petsc4py==$(PETSC_VERSION)
 	$(PIP) install -q -e ".[petsc]"
-	$(PY) -c "from petsc4py import PETSc; from mpi4py import MPI; print('PETSc', PETSc.Sys.getVersion(), MPI.Get_library_version().splitlines()[0])"
+	$(PY) -c "from petsc4py import PETSc; from mpi4py import MPI; print('PETSc', PETSc.Sys.getVersion(), 'MUMPS:', PETSc.Sys.hasExternalPackage('mumps'), MPI.Get_library_version().splitlines()[0])"
 	touch $@
 
 petsc: $(VENV)/.petsc-installed

@@ -12,7 +12,8 @@ memory (MiB) after the imports, the set-up and the path of each rank, the path's
 seconds, per accepted step (time, Newton iterations, energy, cuts), whether a rank's Hessian
 pattern grew (pairings in the current configuration), every Newton run of the path, failed
 attempts included (`attempts`: Newton iterations, converged, energy, residual per iterate), the
-load average before and after."""
+load average before and after; under mpirun also PETSC_OPTIONS (e.g. "-pc_type redundant")
+and each rank's factorization seconds and counts (distributed_scaling.factorization_seconds)."""
 import json
 import os
 import resource
@@ -34,7 +35,8 @@ def main(out, name, level, solver, sets):
     comm = None
     if launched_by_mpirun():
         from mpi4py import MPI
-        from petsc4py import PETSc  # noqa: F401 (its memory counted in the baseline)
+        from petsc4py import PETSc  # (its memory counted in the baseline)
+        PETSc.Log.begin()
         comm = MPI.COMM_WORLD
     baseline = peak_mib()
     c = time.process_time()
@@ -70,6 +72,10 @@ def main(out, name, level, solver, sets):
                steps=[[s["time"], s["iterations"], s["energy"], s["cuts"]] for s in problem.path.steps],
                attempts=attempts,
                load_average=[round(a, 2) for a in (load[0], os.getloadavg()[0])])
+    if comm is not None:
+        from distributed_scaling import factorization_seconds
+        row.update(petsc_options=os.environ.get("PETSC_OPTIONS", ""),
+                   factorization=comm.gather(factorization_seconds(), root=0))
     if comm is None or comm.rank == 0:
         rows = json.load(open(out)) if os.path.exists(out) else []
         with open(out, "w") as f:

@@ -9,7 +9,10 @@ cores), Newton iterations, energy, the numbers summed (reduced + broadcast) and 
 during Newton, the free dofs each rank holds and owns (the others held are its ghosts, whose
 values the scatters move), and each rank's peak
 resident memory (MiB) after the imports, the set-up, the solve, the pieces and (rank 0) the
-whole problem's VTU."""
+whole problem's VTU; the PETSc options (PETSC_OPTIONS, e.g. "-pc_type redundant" for the
+direct solver without MUMPS), whether PETSc has MUMPS, each rank's seconds and count of the
+factorizations (PETSc's log events: symbolic, numeric, PCSetUp whole, MatSolve), the
+minimum check's evidence and the load average before and after."""
 import json
 import os
 import resource
@@ -32,7 +35,9 @@ def peak_mib():
 def main(name, level, solver):
     case = cases.get(name)
     p = case.parameters({})
-    from petsc4py import PETSc  # noqa: F401 (its memory counted in the baseline)
+    from petsc4py import PETSc  # (its memory counted in the baseline)
+    PETSc.Log.begin()
+    load = os.getloadavg()[0]
     baseline = peak_mib()
     t, c = time.perf_counter(), time.process_time()
     problem = DistributedProblem.build(lambda: case.problem(level, case.degrees[0], p))
@@ -41,6 +46,7 @@ def main(name, level, solver):
     c = time.process_time()
     result = problem.minimize(solver=solver)
     newton_cpu = time.process_time() - c
+    factorization = factorization_seconds()
     after_solve = peak_mib()
     comm = problem.comm
     folder = comm.bcast(tempfile.mkdtemp() if comm.rank == 0 else None, root=0)
@@ -66,7 +72,10 @@ def main(name, level, solver):
                baseline_mib=comm.gather(round(baseline), root=0),
                setup_peak_mib=comm.gather(round(after_setup), root=0),
                solve_peak_mib=comm.gather(round(after_solve), root=0),
-               pieces_peak_mib=comm.gather(round(after_pieces), root=0))
+               pieces_peak_mib=comm.gather(round(after_pieces), root=0),
+               petsc_options=os.environ.get("PETSC_OPTIONS", ""), solver=result.solver,
+               mumps=PETSc.Sys.hasExternalPackage("mumps"), factorization=comm.gather(factorization, root=0),
+               negative_pivots=stats["negative_pivots"], lobpcg_steps=stats["lobpcg_steps"])
     if comm.rank == 0:
         t, c = time.perf_counter(), time.process_time()
         serial, r = whole(case, problem, result, case.degrees[0], p)
@@ -75,7 +84,19 @@ def main(name, level, solver):
                    whole_vtu_cpu_seconds=round(time.process_time() - c, 2),
                    whole_vtu_peak_mib=round(peak_mib()))
         shutil.rmtree(folder)
+        row.update(load_average=[round(load, 2), round(os.getloadavg()[0], 2)])
         print(json.dumps(row), flush=True)
+
+
+def factorization_seconds():
+    """{event: [wall seconds, count]} on this rank since PETSc.Log.begin(), of the events that
+    occurred: MUMPS's or PETSc's symbolic and numeric factorizations, the whole PCSetUp
+    (PCREDUNDANT's: also gathering the matrix on every rank), the solves."""
+    from petsc4py import PETSc
+    events = ("MatCholFctrSym", "MatCholFctrNum", "MatLUFactorSym", "MatLUFactorNum", "PCSetUp",
+              "MatSolve")
+    info = {e: PETSc.Log.Event(e).getPerfInfo() for e in events}
+    return {e: [round(v["time"], 3), v["count"]] for e, v in info.items() if v["count"]}
 
 
 def max_op():

@@ -26,8 +26,9 @@ divided among the ranks; the meshes stay whole on every rank.
   surface (ghosts: the current surface and any cell a pairing reaches), and a pairing that
   grows a rank's pattern gives every rank a new PETSc matrix on the grown one;
 - the whole free vector is all-gathered for the result (once per solve); the minimum check
-  at convergence is LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the
-  preconditioner and reductions of a few numbers); the constraint report is the serial
+  at convergence is the inertia of MUMPS's L D L^T ('direct' where PETSc has MUMPS), else
+  LOBPCG on the PETSc vectors (lowest_eigenvalue: products, the preconditioner and
+  reductions of a few numbers); the constraint report is the serial
   engine's (problem.report_constraints) on each rank's elements, combined from a few
   numbers per rank (alpha0's medians by a distributed selection, order_statistics);
 - petsc4py keeps the parallel PETSc objects Python drops until PETSc.garbage_cleanup:
@@ -502,8 +503,10 @@ class KrylovSolver:
     """PETSc's solvers behind the interface of nitsche.linalg's (solve, is_positive_definite,
     stats).  'gamg': CG preconditioned by GAMG (smoothed aggregation) with the near-nullspace
     of nitsche.linalg.near_nullspace (rigid-body modes), to Newton's forcing tolerance;
-    'direct': LU by MUMPS when PETSc has it, else each rank a sequential LU of the whole
-    matrix (PCREDUNDANT).  PETSc options (-ksp_type, -pc_type ...) are applied last."""
+    'direct': when PETSc has MUMPS, its factorization divided among the ranks, P A P^T =
+    L D L^T (symmetric indefinite, 1x1 and 2x2 pivots) for a symmetric problem, else LU;
+    without MUMPS each rank a sequential LU of the whole matrix (PCREDUNDANT).  PETSc
+    options (-ksp_type, -pc_type ...) are applied last."""
 
     def __init__(self, name, dp, rtol=1e-10, maxiter=2000):
         from petsc4py import PETSc
@@ -521,13 +524,24 @@ class KrylovSolver:
             ksp.setTolerances(atol=0.0, max_it=maxiter)
         elif PETSc.Sys.hasExternalPackage("mumps"):
             ksp.setType("preonly")
-            pc.setType("lu")
+            pc.setType("cholesky" if dp.local.symmetric else "lu")
             pc.setFactorSolverType("mumps")
         else:
             ksp.setType("preonly")
             pc.setType("redundant")  # PCREDUNDANT's own solver: LU
         self.ksp, self.kind, self.iterations = ksp, name, []
-        self.minimum_checks = []  # lowest_eigenvalue's estimate and steps, per check
+        self.minimum_checks = []  # per check: lowest_eigenvalue's estimate and steps, or the negative pivots
+
+    def configure(self):
+        """PETSc's options applied (last), then for MUMPS's L D L^T on several ranks
+        ICNTL(13) = 1 unless the options set it: the root front factored by MUMPS rather than
+        ScaLAPACK, so that INFOG(12) counts its negative pivots too (is_positive_definite)."""
+        from petsc4py import PETSc
+        self.ksp.setFromOptions()
+        pc, options = self.ksp.getPC(), PETSc.Options()
+        if (self.dp.ranks > 1 and pc.getType() == "cholesky" and pc.getFactorSolverType() == "mumps"
+                and not options.hasName("mat_mumps_icntl_13")):
+            options.setValue("mat_mumps_icntl_13", 1)
 
     def prepare(self, problem):
         """The near-nullspace of GAMG: rigid-body modes of the vector fields, constants."""
@@ -548,7 +562,7 @@ class KrylovSolver:
             raise IndefiniteHessian(fault)
         if self.kind == "gamg":
             self.ksp.setTolerances(rtol=max(rtol, self.rtol))
-        self.ksp.setFromOptions()
+        self.configure()
         x = self.dp.layout.vector()
         self.ksp.solve(self.dp.layout.vector(b), x)
         reason = self.ksp.getConvergedReason()
@@ -565,20 +579,42 @@ class KrylovSolver:
         return self.dp.layout.held_values(x)
 
     def is_positive_definite(self, A):
-        """As AMGCG's, on distributed vectors: a positive diagonal, and LOBPCG preconditioned
-        by this solver's preconditioner (lowest_eigenvalue) estimates the smallest eigenvalue
-        above 0 (evidence, not proof; with the LU preconditioner it converges in 2-5 steps).
-        Its start depends on the serial free index alone (seeded): the same on any number
-        of ranks.  Nothing is gathered."""
+        """A positive diagonal, then with MUMPS's L D L^T (symmetric_factor) its inertia: no
+        negative pivot (INFOG(12) = 0; D's eigenvalues have A's signs by Sylvester's law, a
+        singular A fails the factorization), the factorization the next solve of A uses.
+        Otherwise as AMGCG's, on distributed vectors: LOBPCG preconditioned by this
+        solver's preconditioner (lowest_eigenvalue) estimates the smallest eigenvalue above
+        0 (evidence, not proof; with an LU preconditioner it converges in 2-5 steps), from
+        a start that depends on the serial free index alone (seeded): the same on any
+        number of ranks.  Nothing is gathered."""
         if diagonal_fault(A.mat):
             return False
         self.ksp.setOperators(A.mat)
+        self.configure()
         self.ksp.setUp()
+        F = self.symmetric_factor()
+        if F is not None:
+            if self.ksp.getPC().getFailedReason():
+                self.minimum_checks.append(dict(negative_pivots=None))
+                return False
+            negative = F.getMumpsInfog(12)
+            self.minimum_checks.append(dict(negative_pivots=negative))
+            return negative == 0
         x = self.dp.layout.vector()
         x.setArray(seeded(self.dp.layout.mine))
         theta, steps = lowest_eigenvalue(A.mat, self.ksp.getPC().apply, x)
         self.minimum_checks.append(dict(estimate=theta, steps=steps))
         return bool(theta > 0)
+
+    def symmetric_factor(self):
+        """MUMPS's factor when the PC is its Cholesky (L D L^T) and INFOG(12) counts every
+        negative pivot (one rank, or the root front factored by MUMPS: ICNTL(13) = 1), else
+        None."""
+        pc = self.ksp.getPC()
+        if pc.getType() != "cholesky" or pc.getFactorSolverType() != "mumps":
+            return None
+        F = pc.getFactorMatrix()
+        return F if self.dp.ranks == 1 or F.getMumpsIcntl(13) == 1 else None
 
     def stats(self):
         return dict(ranks=self.dp.ranks, ksp_iterations=list(self.iterations),
@@ -586,8 +622,10 @@ class KrylovSolver:
                     straddling_constraint_elements=self.dp.straddling,
                     summed_numbers=self.dp.summed_numbers,
                     gathered_numbers=self.dp.layout.gathered_numbers,
-                    lobpcg_estimates=[c["estimate"] for c in self.minimum_checks],
-                    lobpcg_steps=[c["steps"] for c in self.minimum_checks])
+                    lobpcg_estimates=[c["estimate"] for c in self.minimum_checks if "estimate" in c],
+                    lobpcg_steps=[c["steps"] for c in self.minimum_checks if "steps" in c],
+                    negative_pivots=[c["negative_pivots"] for c in self.minimum_checks
+                                     if "negative_pivots" in c])
 
 
 def reason_name(reason):

@@ -289,24 +289,35 @@ def test_an_indefinite_hessian_takes_the_serial_convexified_steps(ranks):
 
 @pytest.mark.parametrize("ranks", [1, 2, 3])
 def test_the_minimum_check_runs_on_distributed_vectors(ranks):
-    """The minimum check at convergence (LOBPCG on the PETSc vectors, nothing gathered):
-    fails at a saddle of a double well whose Hessian has a positive diagonal but a negative
-    eigenvalue (as the serial check does), passes at the well and on obstacle (GAMG), its
-    estimates bounding the smallest eigenvalue from above and within 1e-6 of it there."""
+    """The minimum check at convergence (nothing gathered): fails at a saddle of a double
+    well whose Hessian has a positive diagonal but a negative eigenvalue (as the serial
+    check does), passes at the well and on obstacle (GAMG).  With MUMPS ('direct') the
+    negative pivots of its L D L^T are the Hessian's negative eigenvalues (Sylvester's
+    law); LOBPCG's estimates (GAMG, PCREDUNDANT) bound the smallest eigenvalue from above,
+    <= 0 at the saddle and within 1e-6 of it at minima."""
     lines = mpirun(ranks, str(ROOT / "tests" / "mpi_minimum.py"))
     runs = {r["problem"]: r for r in map(json.loads, lines.strip().splitlines())}
     u = ni.Field("u", MeshTri().refined(3), ElementTriP1())
     serial = ni.minimize(lambda u: (u.value ** 2 - 1) ** 2 + dot(grad(u), grad(u)), [u],
                          x0=np.zeros(u.ndofs), solver="superlu")
-    saddle = runs["saddle"]
-    assert not serial.converged and not saddle["converged"] and saddle["ranks"] == ranks
-    assert saddle["reason"] == serial.reason, (saddle["reason"], serial.reason)
-    assert saddle["lowest"] < 0 and saddle["estimates"] and saddle["estimates"][-1] <= 0, saddle
-    for name in ("well", "obstacle"):
+    mumps = runs["saddle"]["mumps"]
+    for name in ("saddle", "saddle-redundant"):
+        saddle = runs[name]
+        assert not serial.converged and not saddle["converged"] and saddle["ranks"] == ranks
+        assert saddle["reason"] == serial.reason, (saddle["reason"], serial.reason)
+        assert saddle["lowest"] < 0 and saddle["negative"] > 0, saddle
+        if mumps and name == "saddle":
+            assert saddle["negative_pivots"][-1] == saddle["negative"] and not saddle["estimates"], saddle
+        else:
+            assert saddle["estimates"] and saddle["estimates"][-1] <= 0 and not saddle["negative_pivots"], saddle
+    for name in ("well", "well-redundant", "obstacle"):
         r = runs[name]
-        estimate, lowest = r["estimates"][-1], r["lowest"]
-        assert r["converged"] and lowest > 0, r
-        assert lowest - 1e-12 * lowest <= estimate <= lowest + 1e-6 * lowest, r
+        assert r["converged"] and r["lowest"] > 0 and r["negative"] == 0, r
+        if mumps and name == "well":
+            assert r["negative_pivots"][-1] == 0 and not r["estimates"], r
+        else:
+            estimate, lowest = r["estimates"][-1], r["lowest"]
+            assert lowest - 1e-12 * lowest <= estimate <= lowest + 1e-6 * lowest, r
     assert all(r["gathered_numbers"] == 0 for r in runs.values()), runs
 
 
