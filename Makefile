@@ -33,7 +33,7 @@ system-deps:
 # The distributed engine (mpirun -n N nitsche run CASE; nitsche.distributed): Debian's Open MPI,
 # MUMPS 5.5 and ScaLAPACK (built against that Open MPI; gfortran links their Fortran runtime),
 # then mpi4py, pymetis, and PETSc + petsc4py built from PyPI's sources against them (about
-# 5 minutes each on 2 cores; never a cached wheel, which may lack MUMPS); the tests in
+# 10-15 minutes each on 2 shared cores; never a cached wheel, which may lack MUMPS); the tests in
 # tests/test_distributed.py run once this is installed.  MUMPS makes `--solver direct` a
 # factorization divided among the ranks (without it every rank factors the whole matrix).
 MPI_PACKAGES = libopenmpi-dev openmpi-bin patchelf gfortran libmumps-dev libscalapack-openmpi-dev
