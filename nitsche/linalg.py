@@ -526,11 +526,11 @@ NONSYMMETRIC = ("superlu", "gmres")
 def make_solver(name="auto", n=0, dim=2, symmetric=True):
     """A solver by name; 'auto' is CHOLMOD (SuperLU without scikit-sparse), AMG-CG for large 3D;
     for a non-symmetric problem SuperLU's LU, GMRES-ILU for large 3D.
-    CHOLMOD orders 2D problems by AMD up to METIS_THRESHOLD_2D unknowns (METIS's longer
-    analysis does not pay at 130k) and by METIS above it (at 523k: nnz(L) 31M against 48M,
-    a factorization 1.7 against 3.2 s for 2.4 s more analysis, once per level); 3D by
-    CHOLMOD's default (AMD, METIS when the fill is large).  A solver object (with solve, is_positive_definite, stats and
-    name, e.g. nitsche.distributed's) is used as given."""
+    CHOLMOD orders 2D problems by AMD up to METIS_THRESHOLD_2D unknowns and by METIS above
+    it: a smaller factor (523k: nnz(L) 31M against 48M) for a longer analysis (2.4 s more
+    at 523k, 4.8 s at 1M, once per level); 3D by CHOLMOD's default (AMD, METIS when the
+    fill is large).  A solver object (with solve, is_positive_definite, stats and name,
+    e.g. nitsche.distributed's) is used as given."""
     if hasattr(name, "solve"):
         return name
     if not (isinstance(name, str) and (name == "auto" or name in SOLVERS)):

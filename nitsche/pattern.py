@@ -163,9 +163,16 @@ class Pattern:
             self.indptr, self.indices = self.group_indptr, self.group_indices
             self.nnz = self.indices.size
             self.offset = None  # of every group entry: 0
-            self.scatters = [self.scatter(D, f) for D, f in zip(maps, firsts)]
-            return
-        # each group entry (g, h): its first column within the dof rows of g, and their length
+        else:
+            self._expand(size)
+        held = self._held_keys()  # (once for all maps)
+        self.scatters = [self._located(D, f, held) for D, f in zip(maps, firsts)]
+
+    def _expand(self, size):
+        """The dof pattern from the group pattern (groups of `size` dofs): every dof row of
+        group g holds the columns of every group h of row g; offset: each group entry's first
+        column within the dof rows of g."""
+        n = self.n
         width = size[self.group_indices]
         before = np.concatenate([[0], np.cumsum(width)])  # columns before each entry, all rows
         row_start = before[self.group_indptr[:-1]]
@@ -181,7 +188,6 @@ class Pattern:
         self.indices = columns[np.repeat(row_start[self.group] - self.indptr[:-1], length)
                                + np.arange(nnz, dtype=index)]
         self.nnz = nnz
-        self.scatters = [self.scatter(D, f) for D, f in zip(maps, firsts)]
 
     @property
     def nbytes(self):
@@ -190,12 +196,19 @@ class Pattern:
                                    self.group_indptr, self.group_indices) if a is not None}
         return sum(a.nbytes for a in kept.values()) + sum(s.nbytes for s in self.scatters)
 
-    def scatter(self, D, first=None):
-        """The Scatter of the map D if the pattern holds all of its entries, else None
-        (first: the first local column of each run of D, runs(D, group))."""
-        first = runs(D, self.group) if first is None else first
+    def scatter(self, D):
+        """The Scatter of the map D if the pattern holds all of its entries, else None."""
+        return self._located(D, runs(D, self.group), self._held_keys())
+
+    def _held_keys(self):
+        """The sorted keys g * G + h of the group pattern's entries."""
         G = np.int64(self.start.size)
-        held = np.repeat(np.arange(G), np.diff(self.group_indptr)) * G + self.group_indices
+        return np.repeat(np.arange(G), np.diff(self.group_indptr)) * G + self.group_indices
+
+    def _located(self, D, first, held):
+        """The Scatter of the map D (first: the first local column of each run) from the
+        positions of its group pairs among the keys `held`, or None if one is missing."""
+        G = np.int64(self.start.size)
         position = pair_positions(self.group[D[:, first]], held, G, self.group_indptr.dtype)
         return None if position is None else Scatter(self, D, first, position)
 
