@@ -26,6 +26,7 @@ except ImportError:  # pragma: no cover - depends on the machine
 AMG_THRESHOLD_3D = 50_000  # 'auto' switches to AMG-CG above this many unknowns in 3D (P1 tetrahedra,
 # membrane-solid: AMG-CG 0.5x CHOLMOD's CPU time at 71k and 149k, 0.8x at 27k)
 METIS_THRESHOLD_2D = 300_000  # CHOLMOD orders 2D problems by METIS above this many unknowns, by AMD below
+ROUNDOFF_ENTRY = 1e-14  # |a_ij| below this times sqrt(|a_ii a_jj|): the round-off of a cancellation (NonzeroPattern)
 
 
 class IndefiniteHessian(RuntimeError):
@@ -114,19 +115,23 @@ class Cholmod:
 
 
 class NonzeroPattern:
-    """The entries of a sparse pattern that the factorization is given: those nonzero in some
-    matrix factored so far on it, and the diagonal.  The Newton matrices of J_h share one
+    """The entries of a sparse pattern that the factorization is given: those significant in
+    some matrix factored so far on it, and the diagonal.  The Newton matrices of J_h share one
     pattern (every term's element couplings), in which the terms of the points off the active
     set hold exact zeros (e.g. the coupling of two membranes off their contact set, half of
-    the entries at 130k unknowns) and so may cancellations (right-angled P1 triangles); their
-    fill costs a factorization and every solve with it (two membranes at 130k: nnz(L) 14.2M
-    with them, 7.9M without).  The kept entries only grow: a matrix with a nonzero outside
-    them (a point entered the active set) makes a new symbolic analysis of the union."""
+    the entries at 130k unknowns) and cancellations hold round-off (the diagonal edges of
+    right-angled P1 triangles: |a_ij| ~ 1e-17 sqrt(a_ii a_jj)); their fill costs a
+    factorization and every solve with it (two membranes at 130k: nnz(L) 14.2M with the
+    zeros, 7.9M without; the obstacle's 9.67M with the round-off, 5.6M without).  An entry is
+    significant where |a_ij| > ROUNDOFF_ENTRY sqrt(|a_ii a_jj|); the factor is then that of a
+    matrix within ROUNDOFF_ENTRY * (entries per row) of A after diagonal scaling, the accuracy
+    of a factorization of A itself.  The kept entries only grow: a matrix with a significant
+    entry outside them (a point entered the active set) makes a new symbolic analysis of the
+    union."""
 
     def __init__(self, A, before=None):
         self.indptr, self.indices = A.indptr, A.indices
-        kept = A.data != 0
-        kept |= A.indices == column_indices(A)
+        kept = significant(A)
         if before is not None and before.same_pattern(A):
             kept |= before.kept
         self.kept, self.all = kept, bool(kept.all())
@@ -138,8 +143,8 @@ class NonzeroPattern:
             np.array_equal(A.indptr, self.indptr) and np.array_equal(A.indices, self.indices))
 
     def holds(self, A):
-        """Whether A has this pattern and no nonzero outside the kept entries."""
-        return self.same_pattern(A) and (self.all or not np.any((A.data != 0) & ~self.kept))
+        """Whether A has this pattern and no significant entry outside the kept entries."""
+        return self.same_pattern(A) and (self.all or not np.any(significant(A) & ~self.kept))
 
     def part(self, A):
         """A on the kept entries (A itself where all are kept): the same matrix."""
@@ -147,6 +152,16 @@ class NonzeroPattern:
             return A
         return sp.csc_matrix((A.data[self.kept], self.kept_indices, self.kept_indptr),
                              shape=A.shape, copy=False)
+
+
+def significant(A):
+    """Of each stored entry of a CSC matrix: on the diagonal, or |a_ij| > ROUNDOFF_ENTRY
+    sqrt(|a_ii a_jj|) (not zero, nor the round-off of a cancellation)."""
+    d = np.sqrt(np.abs(A.diagonal()))
+    columns = column_indices(A)
+    keep = np.abs(A.data) > ROUNDOFF_ENTRY * (d[A.indices] * d[columns])
+    keep |= A.indices == columns
+    return keep
 
 
 def column_indices(A):

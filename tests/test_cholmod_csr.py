@@ -100,3 +100,36 @@ def test_2d_problems_are_ordered_by_amd_below_the_metis_threshold_and_by_metis_a
     b = np.arange(A.shape[0], dtype=float)
     x = {o: Cholmod(ordering=o).solve(A, b) for o in ("amd", "metis")}
     assert np.allclose(x["metis"], x["amd"], rtol=1e-12, atol=1e-12)
+
+
+def test_the_round_off_of_a_cancellation_is_left_out_of_the_factor_and_a_small_coupling_is_not():
+    """The P1 Laplacian on right-angled triangles couples the two ends of each diagonal edge
+    by 0, which an assembly may hold as round-off (~1e-17 sqrt(a_ii a_jj)): the factor of the
+    matrix with that round-off is the five-point one's, while an entry of 1e-10
+    sqrt(a_ii a_jj) is a coupling and kept."""
+    from skfem import Basis, ElementTriP1, MeshTri, asm
+    from skfem.models.poisson import laplace, mass
+    basis = Basis(MeshTri().refined(4), ElementTriP1())
+    M = asm(mass, basis)  # the nine-point pattern of the triangles' couplings, all nonzero
+    K = asm(laplace, basis) + 1e-3 * sp.eye(M.shape[0])
+    pattern = (abs(K) + M).tocsr()  # one pattern: every coupling stored
+    P = sp.csr_matrix(pattern, copy=True)
+    rows = np.repeat(np.arange(P.shape[0]), np.diff(P.indptr))
+    P.data = np.asarray(K[rows, P.indices]).ravel()  # K on the nine-point pattern
+    cancelled = P.data == 0  # the diagonal edges' couplings of the Laplacian ...
+    assert cancelled.sum() > P.shape[0] // 2
+    five = P.copy()
+    five.eliminate_zeros()
+    b = np.random.default_rng(2).normal(size=P.shape[0])
+    fill = {}
+    for name, scale in (("round-off", 1e-17), ("coupling", 1e-10)):
+        A = P.copy()
+        d = np.sqrt(A.diagonal())
+        A.data[cancelled] = scale * d[rows[cancelled]] * d[A.indices[cancelled]]  # ... as round-off
+        lin = Cholmod(ordering="amd")
+        x = lin.solve(A, b)
+        assert np.linalg.norm(A @ x - b) <= 1e-12 * np.linalg.norm(b)
+        fill[name] = lin.factor.L().nnz
+    lin = Cholmod(ordering="amd")
+    lin.solve(five, b)
+    assert fill["round-off"] == lin.factor.L().nnz < fill["coupling"]
