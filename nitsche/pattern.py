@@ -8,7 +8,8 @@ pairs (g, h) of groups that share an element: the pattern of sum_m B_m^T B_m, B_
 element-group incidence of map m (E elements of r groups each: E r^2 pairs, not the
 E k^2 entries of their k x k matrices; SciPy's sparse product, whose memory is that of
 its result, not of the pairs); each pair's position in it is then found block by block
-of elements.  Then the group pattern is expanded: every dof row of group g holds the
+of elements, by a search for the pairs of local groups a < c only (the pattern is symmetric:
+the diagonal's and the transposed positions give the others).  Then the group pattern is expanded: every dof row of group g holds the
 columns of every group h of row g, so a vector field's pattern is its node pattern with
 full b x b blocks and no structurally zero blocks.
 
@@ -93,22 +94,50 @@ def group_pattern(groups, G, keep=None):
     return S.indptr.astype(index), S.indices.astype(index)
 
 
-def pair_positions(g, held, G, index):
-    """The position in the group pattern, whose entries have the sorted keys `held` = g * G + h,
-    of every pair of groups of the elements g (E, r): (E, r, r) in `index`, or None when the
-    pattern lacks one; by blocks of elements, each block's distinct pairs located by one
-    search (its pairs are not all held at once)."""
+def pair_positions(g, search, G, index):
+    """The position in the group pattern of every pair of groups of the elements g (E, r):
+    (E, r, r) in `index`, or None when the pattern lacks one; search = (held, diagonal,
+    transposed): the sorted keys g * G + h of the pattern's entries and its symmetric_maps.
+    Only the pairs of local groups a < c are searched, by blocks of elements (each block's
+    distinct pairs located by one search; its pairs are not all held at once): the pattern is
+    symmetric, so (c, a) is at transposed[position of (a, c)] and (a, a) at diagonal[g_a]."""
+    held, diagonal, transposed = search
     E, r = g.shape
     position = np.empty((E, r, r), index)
-    step = max(1, KEYS_PER_BLOCK // max(r * r, 1))
+    a, c = np.triu_indices(r, 1)
+    step = max(1, KEYS_PER_BLOCK // max(a.size, 1))
     for s in range(0, E, step):
         b = g[s:s + step].astype(np.int64)
-        keys, rank = distinct((b[:, :, None] * G + b[:, None, :]).ravel(), index_type(b.size * r))
+        block = position[s:s + step]
+        own = diagonal[b]
+        if np.any(own < 0):
+            return None
+        block[:, np.arange(r), np.arange(r)] = own
+        if not a.size:
+            continue
+        keys, rank = distinct((b[:, a] * G + b[:, c]).ravel(), index_type(b.shape[0] * a.size))
         where = np.minimum(np.searchsorted(held, keys), max(held.size - 1, 0))
         if held.size == 0 or not np.array_equal(held[where], keys):
             return None
-        position[s:s + step] = where.astype(index)[rank].reshape(b.shape[0], r, r)
+        upper = where.astype(index)[rank].reshape(b.shape[0], a.size)
+        block[:, a, c] = upper
+        block[:, c, a] = transposed[upper]
     return position
+
+
+def symmetric_maps(indptr, indices, held):
+    """Of a symmetric CSR pattern with sorted rows (keys `held`): the position of each
+    diagonal entry (g, g) (-1 where the pattern lacks it), and the transposition: the position
+    of (h, g) at the position of (g, h) (the CSC order of the positions, a counting sort)."""
+    G = indptr.size - 1
+    keys = np.arange(G, dtype=np.int64) * (G + 1)
+    diagonal = np.full(G, -1, np.int64)
+    if held.size:
+        where = np.minimum(np.searchsorted(held, keys), held.size - 1)
+        found = held[where] == keys
+        diagonal[found] = where[found]
+    positions = sp.csr_matrix((np.arange(indices.size, dtype=indices.dtype), indices, indptr), shape=(G, G))
+    return diagonal, positions.tocsc().data
 
 
 def dof_groups(maps, n):
@@ -165,8 +194,8 @@ class Pattern:
             self.offset = None  # of every group entry: 0
         else:
             self._expand(size)
-        held = self._held_keys()  # (once for all maps)
-        self.scatters = [self._located(D, f, held) for D, f in zip(maps, firsts)]
+        search = self._search()  # (once for all maps)
+        self.scatters = [self._located(D, f, search) for D, f in zip(maps, firsts)]
 
     def _expand(self, size):
         """The dof pattern from the group pattern (groups of `size` dofs): every dof row of
@@ -198,18 +227,20 @@ class Pattern:
 
     def scatter(self, D):
         """The Scatter of the map D if the pattern holds all of its entries, else None."""
-        return self._located(D, runs(D, self.group), self._held_keys())
+        return self._located(D, runs(D, self.group), self._search())
 
-    def _held_keys(self):
-        """The sorted keys g * G + h of the group pattern's entries."""
+    def _search(self):
+        """What pair_positions searches: the sorted keys g * G + h of the group pattern's
+        entries, and its symmetric_maps."""
         G = np.int64(self.start.size)
-        return np.repeat(np.arange(G), np.diff(self.group_indptr)) * G + self.group_indices
+        held = np.repeat(np.arange(G), np.diff(self.group_indptr)) * G + self.group_indices
+        return (held,) + symmetric_maps(self.group_indptr, self.group_indices, held)
 
-    def _located(self, D, first, held):
+    def _located(self, D, first, search):
         """The Scatter of the map D (first: the first local column of each run) from the
-        positions of its group pairs among the keys `held`, or None if one is missing."""
+        positions of its group pairs (search: see _search), or None if one is missing."""
         G = np.int64(self.start.size)
-        position = pair_positions(self.group[D[:, first]], held, G, self.group_indptr.dtype)
+        position = pair_positions(self.group[D[:, first]], search, G, self.group_indptr.dtype)
         return None if position is None else Scatter(self, D, first, position)
 
 

@@ -185,3 +185,27 @@ def test_pair_positions_by_small_blocks_of_elements_equal_those_of_one_block(nam
     assert whole.indices[whole.indptr[0]:whole.indptr[1]][-1] == n - 1  # the kept entry
     for a, b in zip(blocks.scatters, whole.scatters):
         assert np.array_equal(a.positions(), b.positions())
+
+
+def test_symmetric_maps_give_each_entry_its_transpose_and_each_row_its_diagonal():
+    """symmetric_maps of a symmetric pattern without some diagonal entries: the transposed
+    position of (g, h) holds (h, g), transposing twice is the identity, and the diagonal
+    position holds (g, g), -1 where the pattern lacks it."""
+    from nitsche.pattern import symmetric_maps
+    rng = np.random.default_rng(3)
+    S = sp.random(40, 40, density=0.1, random_state=4, format="csr")
+    S = (S + S.T).tocsr()
+    S.setdiag(0)
+    S.eliminate_zeros()
+    S = (S + sp.diags((rng.random(40) < 0.7).astype(float))).tocsr()
+    S.eliminate_zeros()
+    S.sort_indices()
+    rows = np.repeat(np.arange(40), np.diff(S.indptr))
+    held = rows * 40 + S.indices
+    diagonal, transposed = symmetric_maps(S.indptr, S.indices, held)
+    assert np.array_equal(rows[transposed], S.indices) and np.array_equal(S.indices[transposed], rows)
+    assert np.array_equal(transposed[transposed], np.arange(S.nnz))
+    has = S.diagonal() != 0
+    assert np.array_equal(diagonal >= 0, has) and 0 < has.sum() < 40
+    assert np.array_equal(rows[diagonal[has]], np.flatnonzero(has))
+    assert np.array_equal(S.indices[diagonal[has]], np.flatnonzero(has))
