@@ -66,7 +66,8 @@ def build(k):
 
 t0, c0 = time.perf_counter(), time.process_time()
 its = []
-for k, problem, result in study.nested(build, range(level + 1), case.solve):
+for k, problem, result in study.nested(build, range(level + 1), case.solve,
+                                       getattr(study, "COARSE_RTOL", None)):  # as `nitsche run`
     its.append(result.iterations)
     finest = result.seconds
 cpu, wall = time.process_time() - c0, time.perf_counter() - t0

@@ -205,13 +205,14 @@ class Cholesky:
 
 def run_ours(problem, level, alpha0, mesh_spec=None):
     """Nested chain as `nitsche run` runs it (nitsche.study.nested: each level from the
-    previous one's solution, not lifted, the minimum checked on the finest level only);
+    previous one's solution, not lifted, the coarser levels to COARSE_RTOL, the minimum
+    checked on the finest level only);
     mesh_spec None: the case's levels 0..level; else ('tensor', [n...]).  times: the
     Newton phases summed over the levels, setup = the rest (problems and prolongations)."""
     import nitsche  # noqa: F401
     import nitsche.assembly  # noqa: F401
     from nitsche.allocator import keep_freed_memory
-    from nitsche.study import nested
+    import nitsche.study as study
     keep_freed_memory()  # as the `nitsche` command does
     from nitsche.cases import get
     t_all = time.perf_counter()
@@ -232,7 +233,8 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
         make = [lambda n=n: build_ours(problem, refined_tensor_mesh(problem, mesh_spec[0], n), alpha0)
                 for n in mesh_spec]
     its, levels, newton_seconds = [], [], 0.0
-    for k, problem_k, result_k in nested(lambda i: make[i](), range(len(make)), solve):
+    coarse_rtol = getattr(study, "COARSE_RTOL", None)  # as `nitsche run` (an older version: None)
+    for k, problem_k, result_k in study.nested(lambda i: make[i](), range(len(make)), solve, coarse_rtol):
         result_k.check()
         for key in ("assembly", "solve", "line_search", "minimum_check", "compile"):
             t[key] += result_k.timings.get(key, 0.0)

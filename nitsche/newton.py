@@ -16,6 +16,7 @@ ENERGY_ROUNDOFF = 1e-9  # relative change of J_h below which a full step is judg
 STAGNATION_STEP = 1e-8  # relative Newton step accepted as converged once the residual stagnates
 FORCING_MAX = 1e-2      # the loosest relative accuracy asked of an iterative linear solve
 ROUNDOFF = 1e-13        # relative accuracy of a gradient summed from terms (about 500 machine epsilons)
+RTOL = 1e-10           # the default relative residual of the stopping test
 SOLVE_FAILURE = 0.5     # a Newton step with |A dx + g| above this fraction of |g| was not solved
 SHIFT_START = 1e-4      # the first relative diagonal shift tried on an indefinite Newton matrix
 DIVERGED = 1e3         # after convexified steps, a residual this many times the first one: diverged
@@ -225,7 +226,7 @@ class Result:
         return "\n".join(lines)
 
 
-def newton(problem, x0=None, rtol=1e-10, maxiter=50, solver="auto", progress=None, lift=True,
+def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None, lift=True,
            minimum_check=True):
     """Minimize J_h from x0 (fixed dofs are set to their values; lift: where x0's differ
     from the prescribed ones, the increment is carried into the interior first, see

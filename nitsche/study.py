@@ -14,7 +14,7 @@ import numpy as np
 
 from .allocator import release_freed_memory
 from .norms import energy_norm, rates
-from .newton import NotConverged
+from .newton import RTOL, NotConverged
 
 
 def prolongate(coarse, x, fine):
@@ -38,10 +38,11 @@ class StudyFailed(NotConverged):
         self.level, self.reason, self.rows = level, reason, with_rates(rows)
 
 
+COARSE_RTOL = 1e-6  # the relative residual of the coarser levels of `nitsche run`'s chain (nested)
 FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
 
 
-def nested(make_problem, levels, solve=None, **newton_options):
+def nested(make_problem, levels, solve=None, coarse_rtol=None, **newton_options):
     """Nested iteration for any problem: for each k in `levels`, minimize J_h of
     make_problem(k) from the previous level's solution prolongated to it (I u_{k-1}), by
     solve(problem, x0, **newton_options) (default Problem.minimize; a case's load path).
@@ -49,15 +50,20 @@ def nested(make_problem, levels, solve=None, **newton_options):
     differs from the prescribed values only by interpolation: it is not lifted (lift=False,
     which saves a factorization per level) unless newton_options say so.  Only the last
     level's minimum is checked (newton's minimum_check, one factorization per level):
-    a coarser level is the next one's starting guess."""
+    a coarser level is the next one's starting guess, and so, coarse_rtol given, is solved
+    only to the relative residual max(rtol, coarse_rtol) (COARSE_RTOL: far below the
+    interpolation error of I u_{k-1}, which the finer level's Newton steps remove)."""
     newton_options.setdefault("lift", False)
     prev, solve, levels = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o)), list(levels)
     check = newton_options.pop("minimum_check", True)
+    rtol = newton_options.pop("rtol", RTOL)
     for k in levels:
         problem = make_problem(k)
         x0 = prolongate(prev[0], prev[1].x, problem) if prev else None
         prev = result = None  # not held here through this solve (solve_nested drops its own)
-        result = solve(problem, x0, minimum_check=check and k == levels[-1], **newton_options)
+        last = k == levels[-1]
+        result = solve(problem, x0, minimum_check=check and last,
+                       rtol=rtol if last or coarse_rtol is None else max(rtol, coarse_rtol), **newton_options)
         yield k, problem, result
         if not result.converged:
             return
@@ -74,19 +80,23 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     and result, or, when a level fails (Newton, or an error such as MemoryError on a finer
     level), those of the finest converged level and failure = dict(level, reason); a
     failure on the first level returns its unconverged result (an error there is raised).
-    A converged coarser level keeps its result without its problem, which is built again
-    only if a finer level fails, so that its memory is not held through the finer solves."""
+    The levels below `level` are solved to COARSE_RTOL only (nested's coarse_rtol), unless
+    the options' rtol is looser.  A converged coarser level keeps its result without its
+    problem, which is built again only if a finer level fails, so that its memory is not held
+    through the finer solves; it is then solved on to the options' rtol and checked."""
     prev, its = None, []
     engine = engine or (lambda build: build())
     build = lambda k: engine(lambda: case.problem(k, degree, p))  # noqa: E731
 
     def converged_level():
-        """The finest converged level's problem (built again) and result."""
+        """The finest converged level's problem (built again) and result: Newton's method
+        from its solution on to the full tolerance and the minimum check (a coarser level
+        of the chain was solved to COARSE_RTOL only, unchecked)."""
         k, result = prev
         problem = build(k)
-        return problem, dataclasses.replace(result, problem=problem)
+        return problem, case.solve(problem, result.x, **(newton_options or {}))
     try:
-        for k, problem, result in nested(build, range(first, level + 1), case.solve,
+        for k, problem, result in nested(build, range(first, level + 1), case.solve, COARSE_RTOL,
                                          **(newton_options or {})):
             its.append(result.iterations)
             if progress:

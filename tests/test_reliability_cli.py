@@ -288,6 +288,25 @@ def test_a_nested_failure_returns_the_coarser_problem_built_again(monkeypatch):
     assert failure == {"level": 2, "reason": "out of memory"} and len(its) == 2
     assert result.problem is problem and problem.setup.level == 1
     assert np.isclose(problem.energy(result.x), result.energy, rtol=1e-13, atol=0)
+    # level 1 was a coarse level (COARSE_RTOL, unchecked): solved on to 1e-10 and checked
+    assert result.converged and result.residuals[-1] <= 1e-10 and result.timings["minimum_check"] > 0
+
+
+def test_the_coarser_levels_of_a_nested_chain_are_solved_to_the_coarse_tolerance_only():
+    """nested(coarse_rtol): the coarser levels stop at relative residual coarse_rtol, the
+    finest at rtol, with the iterations and J_h of a chain solved to rtol throughout."""
+    from nitsche.study import COARSE_RTOL, nested
+    case = get("obstacle")
+    p = case.parameters()
+    chains = {c: list(nested(lambda k: case.problem(k, 1, p), range(4), case.solve, c))
+              for c in (None, COARSE_RTOL)}
+    full, coarse = ([r for _, _, r in chains[c]] for c in (None, COARSE_RTOL))
+    assert all(r.converged for r in full + coarse)
+    assert all(r.residuals[-1] <= 1e-10 for r in full)
+    assert all(r.residuals[-1] <= COARSE_RTOL < r.residuals[-2] for r in coarse[:-1])  # the first below
+    assert coarse[-1].residuals[-1] <= 1e-10 and coarse[-1].iterations == full[-1].iterations
+    assert sum(r.iterations for r in coarse) < sum(r.iterations for r in full)
+    assert np.isclose(coarse[-1].energy, full[-1].energy, rtol=1e-12, atol=0)
 
 
 def test_a_study_that_fails_keeps_the_levels_it_finished(tmp_path, monkeypatch, capsys):
