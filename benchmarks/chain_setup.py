@@ -66,8 +66,8 @@ def build(k):
 
 t0, c0 = time.perf_counter(), time.process_time()
 its = []
-for k, problem, result in study.nested(build, range(level + 1), case.solve,
-                                       getattr(study, "COARSE_RTOL", None)):  # as `nitsche run`
+coarse = {"coarse_rtol": study.COARSE_RTOL} if hasattr(study, "COARSE_RTOL") else {}  # as `nitsche run`
+for k, problem, result in study.nested(build, range(level + 1), case.solve, **coarse):
     its.append(result.iterations)
     finest = result.seconds
 cpu, wall = time.process_time() - c0, time.perf_counter() - t0

@@ -233,8 +233,8 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
         make = [lambda n=n: build_ours(problem, refined_tensor_mesh(problem, mesh_spec[0], n), alpha0)
                 for n in mesh_spec]
     its, levels, newton_seconds = [], [], 0.0
-    coarse_rtol = getattr(study, "COARSE_RTOL", None)  # as `nitsche run` (an older version: None)
-    for k, problem_k, result_k in study.nested(lambda i: make[i](), range(len(make)), solve, coarse_rtol):
+    coarse = {"coarse_rtol": study.COARSE_RTOL} if hasattr(study, "COARSE_RTOL") else {}  # as `nitsche run`
+    for k, problem_k, result_k in study.nested(lambda i: make[i](), range(len(make)), solve, **coarse):
         result_k.check()
         for key in ("assembly", "solve", "line_search", "minimum_check", "compile"):
             t[key] += result_k.timings.get(key, 0.0)
