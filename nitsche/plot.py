@@ -185,14 +185,15 @@ def _vector_panel(fig, ax, f, d):
     ax.set_aspect("equal")
 
 
-def binned_mean(x, y, values, weights, most=300, per_bin=4):
+def binned_mean(x, y, values, weights, most=300, per_bin=4, chunk=1 << 18):
     """The weighted mean sum(w v) / sum(w) of scattered values in the bins of a grid over
     their bounding box (square bins, `most` along its longer side, fewer where there are
     fewer than `per_bin` points per bin on average): (image (rows, columns), NaN in empty
     bins; extent (left, right, bottom, top)).  A picture of a million points costs one
-    bincount, where drawing them as markers cost seconds each.  Inside
-    nitsche.partition.local each rank gives its own points: the box, the count and the
-    bins' sums are reduced over the ranks (the same picture on every rank)."""
+    bincount per `chunk` points (memory O(bins + chunk)), where drawing them as markers
+    cost seconds each.  Inside nitsche.partition.local each rank gives its own points: the
+    box, the count and the bins' sums are reduced over the ranks (the same picture on
+    every rank)."""
     lo = partition.smallest([x.min(initial=np.inf), y.min(initial=np.inf)])
     hi = partition.largest([x.max(initial=-np.inf), y.max(initial=-np.inf)])
     (x0, y0), (x1, y1) = lo, hi
@@ -201,11 +202,15 @@ def binned_mean(x, y, values, weights, most=300, per_bin=4):
     n = int(np.clip(np.sqrt(count / per_bin), 1, most))
     size = side / n
     shape = (max(int(np.ceil((y1 - y0) / size)), 1), max(int(np.ceil((x1 - x0) / size)), 1))
-    i = np.minimum(((y - y0) / size).astype(int), shape[0] - 1)
-    j = np.minimum(((x - x0) / size).astype(int), shape[1] - 1)
-    k = i * shape[1] + j
-    total = partition.summed(np.bincount(k, weights * values, shape[0] * shape[1]))
-    mass = partition.summed(np.bincount(k, weights, shape[0] * shape[1]))
+    total, mass = np.zeros(shape[0] * shape[1]), np.zeros(shape[0] * shape[1])
+    for s in range(0, x.size, chunk):
+        i = np.minimum(((y[s:s + chunk] - y0) / size).astype(int), shape[0] - 1)
+        j = np.minimum(((x[s:s + chunk] - x0) / size).astype(int), shape[1] - 1)
+        k = i * shape[1] + j
+        w = weights[s:s + chunk]
+        total += np.bincount(k, w * values[s:s + chunk], total.size)
+        mass += np.bincount(k, w, total.size)
+    total, mass = partition.summed(total), partition.summed(mass)
     with np.errstate(invalid="ignore", divide="ignore"):
         image = np.where(mass > 0, total / mass, np.nan).reshape(shape)
     return image, (x0, x0 + shape[1] * size, y0, y0 + shape[0] * size)
