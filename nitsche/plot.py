@@ -1,4 +1,6 @@
-"""Figures: the solution with its contact pressure, and convergence plots."""
+"""Figures: the solution with its contact pressure, and convergence plots.  A field on a
+mesh with more cells than its axes have pixels is drawn as an image of one sample per
+pixel (Raster), in memory bounded by the picture."""
 import matplotlib
 
 matplotlib.use("Agg")
@@ -99,9 +101,11 @@ class Raster(mimage.AxesImage):
         ax.autoscale_view()
 
     def get_extent(self):
+        """The whole pixels sampled when last drawn (before: the triangles' box)."""
         return self.box if self.drawn is None else self.drawn
 
     def draw(self, renderer):
+        """Sampled again where the pixels that the box touches have changed."""
         left, right, bottom, top = self.box
         to_screen = self.axes.transData
         corners = to_screen.transform([(left, bottom), (right, top)])
