@@ -29,3 +29,13 @@ def test_binned_mean_leaves_empty_bins_blank_and_adapts_to_few_points():
     image, _ = binned_mean(np.cos(ring), np.sin(ring), np.ones(ring.size), np.ones(ring.size))
     assert np.isnan(image[image.shape[0] // 2, image.shape[1] // 2])  # no point at the centre
     assert np.nanmax(np.abs(image - 1)) == 0
+
+
+def test_binned_mean_in_chunks_is_the_same_picture():
+    rng = np.random.default_rng(2)
+    x, y = rng.uniform(-1, 1, 5000), rng.uniform(0, 3, 5000)
+    v, w = np.sin(3 * x) * y, rng.uniform(0.5, 1.5, x.size)
+    whole, extent = binned_mean(x, y, v, w, most=20)
+    pieces, same = binned_mean(x, y, v, w, most=20, chunk=333)
+    assert same == extent and np.array_equal(np.isnan(pieces), np.isnan(whole))
+    assert np.nanmax(np.abs(pieces - whole)) < 1e-14 * np.nanmax(np.abs(whole))
