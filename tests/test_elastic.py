@@ -308,3 +308,24 @@ def test_principal_stresses_chunked_equal_cell_basis(cells, monkeypatch):
         np.testing.assert_array_equal(got, expected)
     some = np.array([11, 2, 2, f.mesh.nelements - 1])  # a subset, unordered, repeated
     np.testing.assert_array_equal(ms.principal_stresses(f, u, E, nu, some), expected[:, some])
+
+
+def test_punch_figure_shares_one_colour_scale_between_the_bodies_also_as_rasters(tmp_path, monkeypatch):
+    """deformed_von_mises.png: both bodies' von Mises stress on one scale (0, vmax), whether
+    their cells are drawn as triangles or, on large meshes, as images (plot.Raster)."""
+    import matplotlib.pyplot as plt
+    import nitsche.plot as plot
+    problem, result, p = solve("elastic-contact", 0)
+    scales = {}
+    for forced in (False, True):
+        monkeypatch.setattr(plot, "as_image", lambda ax, cells, dpi=plot.DPI: forced)
+        kept = []
+        monkeypatch.setattr(plt, "close", lambda fig: kept.append(fig))
+        ec.figures(problem, result, p, str(tmp_path))
+        ax = kept[0].axes[0]
+        coloured = [a for a in list(ax.collections) + list(ax.images) if a.get_array() is not None
+                    and a.get_cmap().name == "viridis"]
+        assert len(coloured) == 2 and all(isinstance(a, plot.Raster) == forced for a in coloured)
+        scales[forced] = {a.get_clim() for a in coloured}
+        assert len(scales[forced]) == 1  # one scale for both bodies
+    assert scales[True] == scales[False]

@@ -287,7 +287,7 @@ def figures(problem, result, p, outdir):
         im = cell_colours(ax, tri, vm, cmap="viridis")
         vmax = max(vmax, float(np.percentile(vm, 99.5)))
         ax.triplot(tri, lw=0.1, color="k", alpha=0.3)
-    for c in ax.collections:
+    for c in ax.collections + ax.images:  # (a large mesh's cell colours are an image: plot.Raster)
         if hasattr(c, "set_clim"):
             c.set_clim(0, vmax)
     fig.colorbar(im, ax=ax, shrink=0.7, label="von Mises stress")
