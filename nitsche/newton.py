@@ -57,18 +57,22 @@ def with_free(problem, x, v):
     return y
 
 
-def energy_search(problem, x, dx, E, res, slope):
+def energy_search(problem, x, dx, E, res, slope, system_at=None):
     """x + step dx, step = 1, 1/2, ... the first with Armijo's decrease of J_h (or, at the full
-    step, J_h flat to round-off and the residual smaller); None if 40 halvings fail."""
+    step, J_h flat to round-off and the residual smaller): (step, x + step dx, system), None
+    if 40 halvings fail.  system_at given, the full step's J_h comes from system_at(x + dx)
+    (Newton's system there: J_h, gradient, Hessian), returned as `system` for the next
+    Newton step, which most often starts there (else, and without it, system is None)."""
     xf, step = free_part(problem, x), 1.0
     for _ in range(40):
         xn = with_free(problem, x, xf + step * dx)
-        En = problem.energy(xn)
+        system = system_at(xn) if system_at and step == 1.0 else None
+        En = system[0] if system else problem.energy(xn)
         if np.isfinite(En) and En <= E + 1e-4 * step * slope + 1e-14 * abs(E):
-            return step, xn
+            return step, xn, system
         if step == 1.0 and np.isfinite(En) and abs(En - E) <= ENERGY_ROUNDOFF * abs(E) \
-                and norm(problem, free_part(problem, problem.gradient(xn))) < res:
-            return step, xn  # J_h is flat to round-off here (1/alpha ~ h^-4): judge the step by the residual
+                and norm(problem, system[1] if system else free_part(problem, problem.gradient(xn))) < res:
+            return step, xn, system  # J_h flat to round-off here (1/alpha ~ h^-4): the step judged by the residual
         step *= 0.5
     return None
 
@@ -76,15 +80,16 @@ def energy_search(problem, x, dx, E, res, slope):
 energy_search.merit = "J_h"
 
 
-def residual_search(problem, x, dx, E, res, slope):
+def residual_search(problem, x, dx, E, res, slope, system_at=None):
     """x + step dx, step = 1, 1/2, ... the first with |r| <= (1 - 1e-4 step) |r(x)| (r the
-    residual on the free dofs): (step, x + step dx), None if 40 halvings fail."""
+    residual on the free dofs): (step, x + step dx, None), None if 40 halvings fail
+    (system_at: unused, the trial residuals need no Jacobian)."""
     xf, step = free_part(problem, x), 1.0
     for _ in range(40):
         xn = with_free(problem, x, xf + step * dx)
         rn = norm(problem, free_part(problem, problem.gradient(xn)))
         if np.isfinite(rn) and rn <= (1 - 1e-4 * step) * res:
-            return step, xn
+            return step, xn, None
         step *= 0.5
     return None
 
@@ -263,13 +268,23 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     ref = residual_scale(problem, x_ref, rtol)  # None: scaled by the initial gradient (below)
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
     shift, shifts = SHIFT_START, []  # inertia correction: the next shift, and those taken
+    sliding = getattr(problem, "sliding", None)
+
+    def system_at(y):
+        """Newton's system at y (J_h, gradient, Hessian), its time counted as assembly."""
+        t = time.perf_counter()
+        system = problem.newton_system(y)
+        timings["assembly"] += time.perf_counter() - t
+        return system
+    system = None  # Newton's system at x where the line search assembled it
     for it in range(maxiter + 1):
         t = time.perf_counter()
-        if getattr(problem, "sliding", None) and problem.update_pairing(x):  # a new matrix structure
+        if sliding and problem.update_pairing(x):  # a new matrix structure
             lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
-        A = M = None  # the last step's matrices are not held through this assembly
-        E, g, A = problem.newton_system(x)
         timings["assembly"] += time.perf_counter() - t
+        A = M = None  # the last step's matrices are not held through this assembly
+        E, g, A = system or system_at(x)
+        system = None
         if it == 0 and not (np.isfinite(E) and np.all(np.isfinite(g))):
             raise ValueError(f"J_h or its gradient is not finite at the initial guess (J_h = {E}): "
                              f"{problem.non_finite(x)}; check the densities (log, sqrt, division) "
@@ -340,20 +355,21 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
             it += 1
             residuals.append(norm(problem, free_part(problem, problem.gradient(x))) / ref)
             break
-        t = time.perf_counter()
+        t, assembled = time.perf_counter(), timings["assembly"]
         search = energy_search if problem.symmetric else residual_search
-        found = search(problem, x, dx, E, res, slope)
+        A = M = None  # (not held through the search's assembly at the full step)
+        found = search(problem, x, dx, E, res, slope, None if sliding else system_at)
+        timings["line_search"] += time.perf_counter() - t - (timings["assembly"] - assembled)
         if found is None:
             reason = (f"the line search found no decrease of {search.merit} at iteration {it} "
                       f"(Newton step {norm(problem, dx):.3g}): {UNBOUNDED}")
-            timings["line_search"] += time.perf_counter() - t
             break
-        timings["line_search"] += time.perf_counter() - t
-        step, x = found
+        step, x, system = found
         if not convexified and step == 1.0 and norm(problem, dx) <= 1e-13 * max(norm(problem, free_part(problem, x)), 1e-300):
             converged, reason = True, "full Newton step below round-off"
             it += 1
-            residuals.append(norm(problem, free_part(problem, problem.gradient(x))) / ref)
+            E, g, A = system or system_at(x)  # (the minimum checked at x)
+            residuals.append(norm(problem, g) / ref)
             break
     if shifts and not converged:
         reason += (f" (the Hessian of J_h was not positive definite at {len(shifts)} iterations, "
