@@ -22,6 +22,7 @@ import threading
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
 STEPS = [("commands", "solve", "solve"), ("commands", "write_vtu", "VTU"),
          ("commands", "plot_solution", "figure"), ("problem.Problem", "constraint_values", "values"),
          ("plot", "multiplier_picture", "picture"), ("plot", "binned_mean", "bins"),
@@ -30,28 +31,13 @@ STEPS = [("commands", "solve", "solve"), ("commands", "write_vtu", "VTU"),
 
 
 def child(case, level, triangles):
-    stack, samples = ["imports"], []
-
-    def rss():
-        with open("/proc/self/status") as fh:
-            return next(int(line.split()[1]) / 1024.0 for line in fh if line.startswith("VmRSS"))
+    from memory_phases import label, stack, status  # (the same labels as memory_phases.py)
+    samples = []
 
     def sampler():
         while True:
-            samples.append((rss(), "/".join(stack)))
+            samples.append((status("VmRSS"), "/".join(stack)))
             time.sleep(0.002)
-
-    def label(owner, name, what):
-        f = getattr(owner, name)
-
-        @functools.wraps(f)
-        def inside(*a, **k):
-            stack.append(what)
-            try:
-                return f(*a, **k)
-            finally:
-                stack.pop()
-        setattr(owner, name, inside)
 
     threading.Thread(target=sampler, daemon=True).start()
     import nitsche
