@@ -154,13 +154,21 @@ class NonzeroPattern:
                              shape=A.shape, copy=False)
 
 
-def significant(A):
+def significant(A, entries=2 ** 20):
     """Of each stored entry of a CSC matrix: on the diagonal, or |a_ij| > ROUNDOFF_ENTRY
-    sqrt(|a_ii a_jj|) (not zero, nor the round-off of a cancellation)."""
+    sqrt(|a_ii a_jj|) (not zero, nor the round-off of a cancellation); by blocks of columns
+    of about `entries` entries (the temporaries of a block, not of the matrix)."""
     d = np.sqrt(np.abs(A.diagonal()))
-    columns = column_indices(A)
-    keep = np.abs(A.data) > ROUNDOFF_ENTRY * (d[A.indices] * d[columns])
-    keep |= A.indices == columns
+    keep = np.empty(A.nnz, bool)
+    cuts = np.unique(np.searchsorted(A.indptr, np.arange(0, A.nnz, entries), side="right") - 1)
+    for c0, c1 in zip(cuts, np.append(cuts[1:], A.shape[1])):
+        block = slice(A.indptr[c0], A.indptr[c1])
+        columns = np.repeat(np.arange(c0, c1), np.diff(A.indptr[c0:c1 + 1]))
+        rows = A.indices[block]
+        scale = d[rows]
+        scale *= d[columns]
+        scale *= ROUNDOFF_ENTRY
+        keep[block] = (np.abs(A.data[block]) > scale) | (rows == columns)
     return keep
 
 
