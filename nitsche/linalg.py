@@ -17,6 +17,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .ordering import nested_dissection
+
 try:
     from sksparse.cholmod import analyze, cholesky, CholmodNotPositiveDefiniteError
     HAVE_CHOLMOD = True
@@ -26,6 +28,8 @@ except ImportError:  # pragma: no cover - depends on the machine
 AMG_THRESHOLD_3D = 50_000  # 'auto' switches to AMG-CG above this many unknowns in 3D (P1 tetrahedra,
 # membrane-solid: AMG-CG 0.5x CHOLMOD's CPU time at 71k and 149k, 0.8x at 27k)
 METIS_THRESHOLD_2D = 300_000  # CHOLMOD orders 2D problems by METIS above this many unknowns, by AMD below
+GEOMETRIC_THRESHOLD_2D = 50_000  # above this many unknowns in 2D: nested dissection of the dofs' points
+# (nitsche.ordering) where the solver has them (prepare), else the orderings above
 
 
 class IndefiniteHessian(RuntimeError):
@@ -52,27 +56,66 @@ class Cholmod:
     residual rtol, when that takes at most `reuse_iterations` iterations (the Newton
     matrices of J_h differ only on the points whose active state changed, a
     low-rank change); otherwise, or when CG needed more than half of them, it is
-    factored anew.  rtol=0 asks for a direct solve."""
+    factored anew.  rtol=0 asks for a direct solve.
+
+    The fill-reducing ordering: CHOLMOD's `ordering` method, or, with geometric=True and
+    the free dofs' coordinates from prepare(problem), a geometric nested dissection
+    (nitsche.ordering): the factor is then that of P A P^T (its lower triangle, read from
+    A's), and a solve x = P^T L^-T L^-1 P b."""
     name = "cholmod"
 
-    def __init__(self, reuse_iterations=25, ordering="default"):
+    def __init__(self, reuse_iterations=25, ordering="default", geometric=False):
         self.factor = self.factored = None
-        self.ordering = ordering
+        self.ordering, self.geometric = ordering, geometric
+        self.points = self.perm = None  # the free dofs' coordinates; the nested dissection's order
         self.reuse_iterations, self.stale = reuse_iterations, False
         self.factorizations, self.iterations, self.analyses = 0, [], 0
         self.analyzed = None  # the NonzeroPattern of the symbolic analysis
+
+    def prepare(self, problem):
+        if self.geometric:
+            self.points = dof_coordinates(problem)
+
+    def _analyze(self, A):
+        """The symbolic analysis of A on the analyzed entries: ordered by CHOLMOD, or by
+        nested dissection of the dofs' points (`reordered`: the permuted lower triangle's
+        pattern, its entries' positions in A.data)."""
+        given = self.analyzed.part(A)
+        if self.points is None or len(self.points) != A.shape[0]:  # (points of another problem)
+            self.perm = None
+            self.factor = analyze(given, ordering_method=self.ordering)
+        else:
+            self.perm = nested_dissection(given, self.points)
+            self.reordered = permuted_lower(given, self.perm)
+            if not self.analyzed.all:
+                self.reordered.data = np.flatnonzero(self.analyzed.kept)[self.reordered.data]
+            self.factor = analyze(self._given(A), ordering_method="natural")
+        self.analyses += 1
+
+    def _given(self, A):
+        """The matrix factored: A on the analyzed entries, reordered when perm is set."""
+        if self.perm is None:
+            return self.analyzed.part(A)
+        R = self.reordered
+        return sp.csc_matrix((A.data[R.data], R.indices, R.indptr), shape=A.shape, copy=False)
+
+    def _solve(self, b):
+        """x = A^-1 b with the factor of A (of P A P^T: x[perm] = (P A P^T)^-1 b[perm])."""
+        if self.perm is None:
+            return self.factor(b)
+        x = np.empty_like(b)
+        x[self.perm] = self.factor(b[self.perm])
+        return x
 
     def _factor(self, A):
         try:
             if self.analyzed is None or not self.analyzed.holds(A):
                 self.analyzed = NonzeroPattern(A, self.analyzed)
                 self.factor = None
-            given = self.analyzed.part(A)
             if self.factor is None:
-                self.factor = analyze(given, ordering_method=self.ordering)
-                self.analyses += 1
+                self._analyze(A)
             self.factored = None
-            self.factor.cholesky_inplace(given)
+            self.factor.cholesky_inplace(self._given(A))
         except CholmodNotPositiveDefiniteError as e:
             raise IndefiniteHessian(str(e))
         if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
@@ -84,15 +127,15 @@ class Cholmod:
     def solve(self, A, b, rtol=0.0):
         A = symmetric_csc(A)
         if self.factored is not None and semidefinite_difference(A, self.factored, zero=True):
-            return self.factor(b)  # same matrix as the factored one
+            return self._solve(b)  # same matrix as the factored one
         if self.factor is not None and rtol > 0 and not self.stale:
-            x, its = pcg(A, b, self.factor, rtol, self.reuse_iterations)
+            x, its = pcg(A, b, self._solve, rtol, self.reuse_iterations)
             if x is not None:
                 self.iterations.append(its)
                 self.stale = its > self.reuse_iterations // 2
                 return x
         self._factor(A)
-        return self.factor(b)
+        return self._solve(b)
 
     def is_positive_definite(self, A):
         """Whether A is positive definite: True without a new factorization when A = F + D,
@@ -147,6 +190,16 @@ class NonzeroPattern:
             return A
         return sp.csc_matrix((A.data[self.kept], self.kept_indices, self.kept_indptr),
                              shape=A.shape, copy=False)
+
+
+def permuted_lower(A, perm):
+    """The lower triangle of P A P^T (P A P^T = A[perm][:, perm]) as CSC, taken from A's lower
+    triangle (a CSC matrix: the triangle CHOLMOD reads), its values the positions in A.data."""
+    new = np.empty(perm.size, dtype=np.int64)
+    new[perm] = np.arange(perm.size)
+    k = np.flatnonzero(A.indices >= column_indices(A))
+    i, j = new[A.indices[k]], new[column_indices(A)[k]]
+    return sp.csc_matrix((k, (np.maximum(i, j), np.minimum(i, j))), shape=A.shape)
 
 
 def column_indices(A):
@@ -479,6 +532,20 @@ def lowest_eigenvalue(A, M, iterations=40):
         return float(spla.lobpcg(A, X, M=M, largest=False, tol=1e-3, maxiter=iterations)[0][0])
 
 
+def dof_coordinates(problem):
+    """The free dofs' locations (free dofs, dim) from the fields' dof bases (a field of a
+    lower dimension padded with zeros), None if a field's element has none."""
+    fields = problem.fields
+    if not all(hasattr(f.dof_basis, "doflocs") for f in fields):
+        return None
+    dim = max(f.dof_basis.doflocs.shape[0] for f in fields)
+    X = np.zeros((problem.ndofs, dim))
+    for f in fields:
+        x = f.dof_basis.doflocs
+        X[problem.offsets[f.name]:problem.offsets[f.name] + f.ndofs, :x.shape[0]] = x.T
+    return X[problem.free]
+
+
 def near_nullspace(problem):
     """Columns spanning the near-nullspace of the energy on the free dofs: for each
     vector Lagrange field its rigid-body modes (translations and rotations about the
@@ -556,5 +623,6 @@ def make_solver(name="auto", n=0, dim=2, symmetric=True):
     if name != "cholmod":
         return SOLVERS[name]()
     if dim == 2:
-        return Cholmod(ordering="metis" if n > METIS_THRESHOLD_2D else "amd")
+        return Cholmod(ordering="metis" if n > METIS_THRESHOLD_2D else "amd",
+                       geometric=n > GEOMETRIC_THRESHOLD_2D)
     return Cholmod(ordering="default")
