@@ -28,8 +28,11 @@ except ImportError:  # pragma: no cover - depends on the machine
 AMG_THRESHOLD_3D = 50_000  # 'auto' switches to AMG-CG above this many unknowns in 3D (P1 tetrahedra,
 # membrane-solid: AMG-CG 0.5x CHOLMOD's CPU time at 71k and 149k, 0.8x at 27k)
 METIS_THRESHOLD_2D = 300_000  # CHOLMOD orders 2D problems by METIS above this many unknowns, by AMD below
-GEOMETRIC_THRESHOLD_2D = 50_000  # above this many unknowns in 2D: nested dissection of the dofs' points
-# (nitsche.ordering) where the solver has them (prepare), else the orderings above
+GEOMETRIC_THRESHOLD_2D = 50_000  # above this many unknowns in 2D (5000 in 3D): nested dissection
+GEOMETRIC_THRESHOLD_3D = 5_000   # of the dofs' points (nitsche.ordering) where the solver has them
+# (prepare), else the orderings above; but METIS up to METIS_KEPT_2D (its smaller factor keeps
+# the 523k obstacle's peak at 1.5x the linear solve's)
+METIS_KEPT_2D = 750_000
 
 
 class IndefiniteHessian(RuntimeError):
@@ -88,7 +91,8 @@ class Cholmod:
             self.perm = nested_dissection(given, self.points)
             self.reordered = permuted_lower(given, self.perm)
             if not self.analyzed.all:
-                self.reordered.data = np.flatnonzero(self.analyzed.kept)[self.reordered.data]
+                kept = np.flatnonzero(self.analyzed.kept).astype(position_type(A.data.size))
+                self.reordered.data = kept[self.reordered.data]
             self.factor = analyze(self._given(A), ordering_method="natural")
         self.analyses += 1
 
@@ -194,12 +198,19 @@ class NonzeroPattern:
 
 def permuted_lower(A, perm):
     """The lower triangle of P A P^T (P A P^T = A[perm][:, perm]) as CSC, taken from A's lower
-    triangle (a CSC matrix: the triangle CHOLMOD reads), its values the positions in A.data."""
+    triangle (a CSC matrix: the triangle CHOLMOD reads), its values the positions in A.data
+    (32-bit where they fit)."""
     new = np.empty(perm.size, dtype=np.int64)
     new[perm] = np.arange(perm.size)
     k = np.flatnonzero(A.indices >= column_indices(A))
     i, j = new[A.indices[k]], new[column_indices(A)[k]]
-    return sp.csc_matrix((k, (np.maximum(i, j), np.minimum(i, j))), shape=A.shape)
+    return sp.csc_matrix((k.astype(position_type(A.data.size)), (np.maximum(i, j), np.minimum(i, j))),
+                         shape=A.shape)
+
+
+def position_type(n):
+    """The integer type of positions 0..n-1."""
+    return np.int32 if n < 2 ** 31 else np.int64
 
 
 def column_indices(A):
@@ -593,11 +604,24 @@ NONSYMMETRIC = ("superlu", "gmres")
 def make_solver(name="auto", n=0, dim=2, symmetric=True):
     """A solver by name; 'auto' is CHOLMOD (SuperLU without scikit-sparse), AMG-CG for large 3D;
     for a non-symmetric problem SuperLU's LU, GMRES-ILU for large 3D.
-    CHOLMOD orders 2D problems by AMD up to METIS_THRESHOLD_2D unknowns and by METIS above
-    it: a smaller factor (523k: nnz(L) 31M against 48M) for a longer analysis (2.4 s more
-    at 523k, 4.8 s at 1M, once per level); 3D by CHOLMOD's default (AMD, METIS when the
-    fill is large).  A solver object (with solve, is_positive_definite, stats and name,
-    e.g. nitsche.distributed's) is used as given."""
+    CHOLMOD orders problems of more than GEOMETRIC_THRESHOLD_2D unknowns in 2D (_3D in 3D)
+    by a nested dissection of the free dofs' points (nitsche.ordering; newton() gives them
+    through prepare(problem)): near METIS's fill for AMD's analysis time.  Measured on K + M
+    of P1 (benchmarks/ordering.py, CPU s of the analysis + one factorization, nnz(L);
+    geometric / AMD / METIS): the obstacle's mesh at 130k 0.45 / 0.49 / 0.94 s, 7.6 / 9.7 /
+    6.8M; 523k 2.0 / 2.8 / 4.4 s, 34.9 / 48.2 / 31.3M; 1M 3.5 / 3.5 / 8.5 s, 65.8 / 74.0 /
+    64.5M (its factorization 2.3 / 3.0 / 2.9 s); tetrahedra at 55k 0.94 / 1.92 / 1.34 s,
+    19.1 / 31.4 / 19.3M, at 6.9k 0.052 / 0.059 / 0.081 s; in 2D at 33k it ties with AMD
+    (0.10 s, nnz(L) 1.6M against 2.0M) and below it AMD is cheaper.  From METIS_THRESHOLD_2D
+    to METIS_KEPT_2D unknowns METIS stays: the chain at 523k is 13-15 % less CPU with the
+    geometric order but its peak 69-95 MB higher (obstacle 1460 MB against 1365, above the
+    1.5x of the linear solve's); at 1M the chain's finest solves take 7.6-8.0 s against
+    11.9-12.1 s by METIS, the peak the same.  Without the points (a solver made without
+    prepare) 2D problems are ordered by AMD up to METIS_THRESHOLD_2D unknowns and by METIS
+    above it (a smaller factor than AMD's for a longer analysis: 2.4 s more at 523k, 5.1 s at
+    1M), 3D ones by CHOLMOD's default (AMD, METIS when the fill is large).  A solver object
+    (with solve, is_positive_definite, stats and name, e.g. nitsche.distributed's) is used
+    as given."""
     if hasattr(name, "solve"):
         return name
     if not (isinstance(name, str) and (name == "auto" or name in SOLVERS)):
@@ -624,5 +648,5 @@ def make_solver(name="auto", n=0, dim=2, symmetric=True):
         return SOLVERS[name]()
     if dim == 2:
         return Cholmod(ordering="metis" if n > METIS_THRESHOLD_2D else "amd",
-                       geometric=n > GEOMETRIC_THRESHOLD_2D)
-    return Cholmod(ordering="default")
+                       geometric=n > GEOMETRIC_THRESHOLD_2D and not METIS_THRESHOLD_2D < n <= METIS_KEPT_2D)
+    return Cholmod(ordering="default", geometric=n > GEOMETRIC_THRESHOLD_3D)

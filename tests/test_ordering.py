@@ -141,11 +141,15 @@ def test_newton_with_the_geometric_order_reaches_the_same_minimum(case, paramete
 
 
 def test_make_solver_orders_large_2d_problems_geometrically():
-    from nitsche.linalg import GEOMETRIC_THRESHOLD_2D, METIS_THRESHOLD_2D, make_solver
+    from nitsche.linalg import (GEOMETRIC_THRESHOLD_2D, GEOMETRIC_THRESHOLD_3D, METIS_KEPT_2D,
+                                METIS_THRESHOLD_2D, make_solver)
     if not HAVE_CHOLMOD:
         pytest.skip("scikit-sparse is not installed")
     assert make_solver("auto", GEOMETRIC_THRESHOLD_2D + 1, dim=2).geometric
     assert not make_solver("cholmod", GEOMETRIC_THRESHOLD_2D, dim=2).geometric
-    assert not make_solver("cholmod", 1000, dim=3).geometric
-    lin = make_solver("auto", METIS_THRESHOLD_2D + 1, dim=2)  # without prepare: METIS, as before
+    assert make_solver("cholmod", GEOMETRIC_THRESHOLD_3D + 1, dim=3).geometric
+    assert not make_solver("cholmod", GEOMETRIC_THRESHOLD_3D, dim=3).geometric
+    assert not make_solver("auto", METIS_KEPT_2D, dim=2).geometric  # METIS's smaller factor
+    assert make_solver("auto", METIS_THRESHOLD_2D, dim=2).geometric
+    lin = make_solver("auto", METIS_KEPT_2D + 1, dim=2)  # without prepare: METIS, as before
     assert lin.geometric and lin.ordering == "metis" and lin.points is None
