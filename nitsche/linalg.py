@@ -615,8 +615,8 @@ def make_solver(name="auto", n=0, dim=2, symmetric=True):
     (0.10 s, nnz(L) 1.6M against 2.0M) and below it AMD is cheaper.  From METIS_THRESHOLD_2D
     to METIS_KEPT_2D unknowns METIS stays: the chain at 523k is 13-15 % less CPU with the
     geometric order but its peak 69-95 MB higher (obstacle 1460 MB against 1365, above the
-    1.5x of the linear solve's); at 1M the chain's finest solves take 7.6-8.0 s against
-    11.9-12.1 s by METIS, the peak the same.  Without the points (a solver made without
+    1.5x of the linear solve's); at 1M the chain's solves take 7.6-8.0 s against 11.9-12.1
+    s by METIS, the peak the same.  Without the points (a solver made without
     prepare) 2D problems are ordered by AMD up to METIS_THRESHOLD_2D unknowns and by METIS
     above it (a smaller factor than AMD's for a longer analysis: 2.4 s more at 523k, 5.1 s at
     1M), 3D ones by CHOLMOD's default (AMD, METIS when the fill is large).  A solver object
