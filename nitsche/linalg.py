@@ -17,6 +17,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .ordering import nested_dissection
+
 try:
     from sksparse.cholmod import analyze, cholesky, CholmodNotPositiveDefiniteError
     HAVE_CHOLMOD = True
@@ -27,6 +29,11 @@ AMG_THRESHOLD_3D = 50_000  # 'auto' switches to AMG-CG above this many unknowns 
 # membrane-solid: AMG-CG 0.5x CHOLMOD's CPU time at 71k and 149k, 0.8x at 27k)
 METIS_THRESHOLD_2D = 300_000  # CHOLMOD orders 2D problems by METIS above this many unknowns, by AMD below
 ROUNDOFF_ENTRY = 1e-14  # |a_ij| below this times sqrt(|a_ii a_jj|): the round-off of a cancellation (NonzeroPattern)
+GEOMETRIC_THRESHOLD_2D = 50_000  # above this many unknowns in 2D (5000 in 3D): nested dissection
+GEOMETRIC_THRESHOLD_3D = 5_000   # of the dofs' points (nitsche.ordering) where the solver has them
+# (prepare), else the orderings above; but METIS up to METIS_KEPT_2D (its smaller factor keeps
+# the 523k obstacle's peak at 1.5x the linear solve's)
+METIS_KEPT_2D = 750_000
 
 
 class IndefiniteHessian(RuntimeError):
@@ -53,27 +60,67 @@ class Cholmod:
     residual rtol, when that takes at most `reuse_iterations` iterations (the Newton
     matrices of J_h differ only on the points whose active state changed, a
     low-rank change); otherwise, or when CG needed more than half of them, it is
-    factored anew.  rtol=0 asks for a direct solve."""
+    factored anew.  rtol=0 asks for a direct solve.
+
+    The fill-reducing ordering: CHOLMOD's `ordering` method, or, with geometric=True and
+    the free dofs' coordinates from prepare(problem), a geometric nested dissection
+    (nitsche.ordering): the factor is then that of P A P^T (its lower triangle, read from
+    A's), and a solve x = P^T L^-T L^-1 P b."""
     name = "cholmod"
 
-    def __init__(self, reuse_iterations=25, ordering="default"):
+    def __init__(self, reuse_iterations=25, ordering="default", geometric=False):
         self.factor = self.factored = None
-        self.ordering = ordering
+        self.ordering, self.geometric = ordering, geometric
+        self.points = self.perm = None  # the free dofs' coordinates; the nested dissection's order
         self.reuse_iterations, self.stale = reuse_iterations, False
         self.factorizations, self.iterations, self.analyses = 0, [], 0
         self.analyzed = None  # the NonzeroPattern of the symbolic analysis
+
+    def prepare(self, problem):
+        if self.geometric:
+            self.points = dof_coordinates(problem)
+
+    def _analyze(self, A):
+        """The symbolic analysis of A on the analyzed entries: ordered by CHOLMOD, or by
+        nested dissection of the dofs' points (`reordered`: the permuted lower triangle's
+        pattern, its entries' positions in A.data)."""
+        given = self.analyzed.part(A)
+        if self.points is None or len(self.points) != A.shape[0]:  # (points of another problem)
+            self.perm = None
+            self.factor = analyze(given, ordering_method=self.ordering)
+        else:
+            self.perm = nested_dissection(given, self.points)
+            self.reordered = permuted_lower(given, self.perm)
+            if not self.analyzed.all:
+                kept = np.flatnonzero(self.analyzed.kept).astype(position_type(A.data.size))
+                self.reordered.data = kept[self.reordered.data]
+            self.factor = analyze(self._given(A), ordering_method="natural")
+        self.analyses += 1
+
+    def _given(self, A):
+        """The matrix factored: A on the analyzed entries, reordered when perm is set."""
+        if self.perm is None:
+            return self.analyzed.part(A)
+        R = self.reordered
+        return sp.csc_matrix((A.data[R.data], R.indices, R.indptr), shape=A.shape, copy=False)
+
+    def _solve(self, b):
+        """x = A^-1 b with the factor of A (of P A P^T: x[perm] = (P A P^T)^-1 b[perm])."""
+        if self.perm is None:
+            return self.factor(b)
+        x = np.empty_like(b)
+        x[self.perm] = self.factor(b[self.perm])
+        return x
 
     def _factor(self, A):
         try:
             if self.analyzed is None or not self.analyzed.holds(A):
                 self.analyzed = NonzeroPattern(A, self.analyzed)
                 self.factor = None
-            given = self.analyzed.part(A)
             if self.factor is None:
-                self.factor = analyze(given, ordering_method=self.ordering)
-                self.analyses += 1
+                self._analyze(A)
             self.factored = None
-            self.factor.cholesky_inplace(given)
+            self.factor.cholesky_inplace(self._given(A))
         except CholmodNotPositiveDefiniteError as e:
             raise IndefiniteHessian(str(e))
         if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
@@ -85,15 +132,15 @@ class Cholmod:
     def solve(self, A, b, rtol=0.0):
         A = symmetric_csc(A)
         if self.factored is not None and semidefinite_difference(A, self.factored, zero=True):
-            return self.factor(b)  # same matrix as the factored one
+            return self._solve(b)  # same matrix as the factored one
         if self.factor is not None and rtol > 0 and not self.stale:
-            x, its = pcg(A, b, self.factor, rtol, self.reuse_iterations)
+            x, its = pcg(A, b, self._solve, rtol, self.reuse_iterations)
             if x is not None:
                 self.iterations.append(its)
                 self.stale = its > self.reuse_iterations // 2
                 return x
         self._factor(A)
-        return self.factor(b)
+        return self._solve(b)
 
     def is_positive_definite(self, A):
         """Whether A is positive definite: True without a new factorization when A = F + D,
@@ -170,6 +217,23 @@ def significant(A, entries=2 ** 20):
         scale *= ROUNDOFF_ENTRY
         keep[block] = (np.abs(A.data[block]) > scale) | (rows == columns)
     return keep
+
+
+def permuted_lower(A, perm):
+    """The lower triangle of P A P^T (P A P^T = A[perm][:, perm]) as CSC, taken from A's lower
+    triangle (a CSC matrix: the triangle CHOLMOD reads), its values the positions in A.data
+    (32-bit where they fit)."""
+    new = np.empty(perm.size, dtype=np.int64)
+    new[perm] = np.arange(perm.size)
+    k = np.flatnonzero(A.indices >= column_indices(A))
+    i, j = new[A.indices[k]], new[column_indices(A)[k]]
+    return sp.csc_matrix((k.astype(position_type(A.data.size)), (np.maximum(i, j), np.minimum(i, j))),
+                         shape=A.shape)
+
+
+def position_type(n):
+    """The integer type of positions 0..n-1."""
+    return np.int32 if n < 2 ** 31 else np.int64
 
 
 def column_indices(A):
@@ -502,6 +566,20 @@ def lowest_eigenvalue(A, M, iterations=40):
         return float(spla.lobpcg(A, X, M=M, largest=False, tol=1e-3, maxiter=iterations)[0][0])
 
 
+def dof_coordinates(problem):
+    """The free dofs' locations (free dofs, dim) from the fields' dof bases (a field of a
+    lower dimension padded with zeros), None if a field's element has none."""
+    fields = problem.fields
+    if not all(hasattr(f.dof_basis, "doflocs") for f in fields):
+        return None
+    dim = max(f.dof_basis.doflocs.shape[0] for f in fields)
+    X = np.zeros((problem.ndofs, dim))
+    for f in fields:
+        x = f.dof_basis.doflocs
+        X[problem.offsets[f.name]:problem.offsets[f.name] + f.ndofs, :x.shape[0]] = x.T
+    return X[problem.free]
+
+
 def near_nullspace(problem):
     """Columns spanning the near-nullspace of the energy on the free dofs: for each
     vector Lagrange field its rigid-body modes (translations and rotations about the
@@ -549,11 +627,24 @@ NONSYMMETRIC = ("superlu", "gmres")
 def make_solver(name="auto", n=0, dim=2, symmetric=True):
     """A solver by name; 'auto' is CHOLMOD (SuperLU without scikit-sparse), AMG-CG for large 3D;
     for a non-symmetric problem SuperLU's LU, GMRES-ILU for large 3D.
-    CHOLMOD orders 2D problems by AMD up to METIS_THRESHOLD_2D unknowns and by METIS above
-    it: a smaller factor (523k: nnz(L) 31M against 48M) for a longer analysis (2.4 s more
-    at 523k, 4.8 s at 1M, once per level); 3D by CHOLMOD's default (AMD, METIS when the
-    fill is large).  A solver object (with solve, is_positive_definite, stats and name,
-    e.g. nitsche.distributed's) is used as given."""
+    CHOLMOD orders problems of more than GEOMETRIC_THRESHOLD_2D unknowns in 2D (_3D in 3D)
+    by a nested dissection of the free dofs' points (nitsche.ordering; newton() gives them
+    through prepare(problem)): near METIS's fill for AMD's analysis time.  Measured on K + M
+    of P1 (benchmarks/ordering.py, CPU s of the analysis + one factorization, nnz(L);
+    geometric / AMD / METIS): the obstacle's mesh at 130k 0.45 / 0.49 / 0.94 s, 7.6 / 9.7 /
+    6.8M; 523k 2.0 / 2.8 / 4.4 s, 34.9 / 48.2 / 31.3M; 1M 3.5 / 3.5 / 8.5 s, 65.8 / 74.0 /
+    64.5M (its factorization 2.3 / 3.0 / 2.9 s); tetrahedra at 55k 0.94 / 1.92 / 1.34 s,
+    19.1 / 31.4 / 19.3M, at 6.9k 0.052 / 0.059 / 0.081 s; in 2D at 33k it ties with AMD
+    (0.10 s, nnz(L) 1.6M against 2.0M) and below it AMD is cheaper.  From METIS_THRESHOLD_2D
+    to METIS_KEPT_2D unknowns METIS stays: the chain at 523k is 13-15 % less CPU with the
+    geometric order but its peak 69-95 MB higher (obstacle 1460 MB against 1365, above the
+    1.5x of the linear solve's); at 1M the chain's solves take 7.6-8.0 s against 11.9-12.1
+    s by METIS, the peak the same.  Without the points (a solver made without
+    prepare) 2D problems are ordered by AMD up to METIS_THRESHOLD_2D unknowns and by METIS
+    above it (a smaller factor than AMD's for a longer analysis: 2.4 s more at 523k, 5.1 s at
+    1M), 3D ones by CHOLMOD's default (AMD, METIS when the fill is large).  A solver object
+    (with solve, is_positive_definite, stats and name, e.g. nitsche.distributed's) is used
+    as given."""
     if hasattr(name, "solve"):
         return name
     if not (isinstance(name, str) and (name == "auto" or name in SOLVERS)):
@@ -579,5 +670,6 @@ def make_solver(name="auto", n=0, dim=2, symmetric=True):
     if name != "cholmod":
         return SOLVERS[name]()
     if dim == 2:
-        return Cholmod(ordering="metis" if n > METIS_THRESHOLD_2D else "amd")
-    return Cholmod(ordering="default")
+        return Cholmod(ordering="metis" if n > METIS_THRESHOLD_2D else "amd",
+                       geometric=n > GEOMETRIC_THRESHOLD_2D and not METIS_THRESHOLD_2D < n <= METIS_KEPT_2D)
+    return Cholmod(ordering="default", geometric=n > GEOMETRIC_THRESHOLD_3D)
