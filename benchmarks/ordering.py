@@ -34,6 +34,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from memory_phases import status as vm  # noqa: E402  (a /proc/self/status value in MB)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 ORDERINGS = ("amd", "metis", "ours")
@@ -73,15 +76,6 @@ def matrix(case, size):
     C = asm(mass, Basis(mesh, element, elements=disc)).tocsc()[free][:, free]
     A = sp.bmat([[K + C, -C], [-C, K + C]], format="csc")
     return A, np.concatenate([points, points])
-
-
-def vm(key):
-    """A /proc/self/status memory value in MB (VmRSS, VmHWM)."""
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 def cpu():
@@ -132,11 +126,13 @@ def main():
     args = ap.parse_args()
     if args.child:
         return child(*args.child)
+    unknown = [f"{c} {s}" for c in args.cases for s in args.sizes if s not in SIZES.get(c, {})]
+    if unknown:
+        ap.error(f"no such matrix: {', '.join(unknown)}; sizes: "
+                 + "; ".join(f"{c}: {', '.join(v)}" for c, v in SIZES.items()))
     rows = []
     for case in args.cases:
         for size in args.sizes:
-            if size not in SIZES[case]:
-                continue
             runs = {o: [] for o in ORDERINGS}
             for _ in range(args.repeat):
                 for o in ORDERINGS:
