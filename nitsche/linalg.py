@@ -18,6 +18,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from .ordering import nested_dissection
+from .pattern import index_type
 
 try:
     from sksparse.cholmod import analyze, cholesky, CholmodNotPositiveDefiniteError
@@ -72,6 +73,7 @@ class Cholmod:
         self.factor = self.factored = None
         self.ordering, self.geometric = ordering, geometric
         self.points = self.perm = None  # the free dofs' coordinates; the nested dissection's order
+        self.reordered = None  # with perm: P A P^T's lower triangle, its values positions in A.data
         self.reuse_iterations, self.stale = reuse_iterations, False
         self.factorizations, self.iterations, self.analyses = 0, [], 0
         self.analyzed = None  # the NonzeroPattern of the symbolic analysis
@@ -92,7 +94,7 @@ class Cholmod:
             self.perm = nested_dissection(given, self.points)
             self.reordered = permuted_lower(given, self.perm)
             if not self.analyzed.all:
-                kept = np.flatnonzero(self.analyzed.kept).astype(position_type(A.data.size))
+                kept = np.flatnonzero(self.analyzed.kept).astype(index_type(A.data.size))
                 self.reordered.data = kept[self.reordered.data]
             self.factor = analyze(self._given(A), ordering_method="natural")
         self.analyses += 1
@@ -225,15 +227,11 @@ def permuted_lower(A, perm):
     (32-bit where they fit)."""
     new = np.empty(perm.size, dtype=np.int64)
     new[perm] = np.arange(perm.size)
-    k = np.flatnonzero(A.indices >= column_indices(A))
-    i, j = new[A.indices[k]], new[column_indices(A)[k]]
-    return sp.csc_matrix((k.astype(position_type(A.data.size)), (np.maximum(i, j), np.minimum(i, j))),
+    columns = column_indices(A)
+    k = np.flatnonzero(A.indices >= columns)
+    i, j = new[A.indices[k]], new[columns[k]]
+    return sp.csc_matrix((k.astype(index_type(A.data.size)), (np.maximum(i, j), np.minimum(i, j))),
                          shape=A.shape)
-
-
-def position_type(n):
-    """The integer type of positions 0..n-1."""
-    return np.int32 if n < 2 ** 31 else np.int64
 
 
 def column_indices(A):

@@ -8,10 +8,11 @@ pairs (g, h) of groups that share an element: the pattern of sum_m B_m^T B_m, B_
 element-group incidence of map m (E elements of r groups each: E r^2 pairs, not the
 E k^2 entries of their k x k matrices; SciPy's sparse product, whose memory is that of
 its result, not of the pairs); each pair's position in it is then found block by block
-of elements, by a search for the pairs of local groups a < c only (the pattern is symmetric:
-the diagonal's and the transposed positions give the others).  Then the group pattern is expanded: every dof row of group g holds the
-columns of every group h of row g, so a vector field's pattern is its node pattern with
-full b x b blocks and no structurally zero blocks.
+of elements, by a search for the pairs of local groups a < c only (the pattern is
+symmetric: the diagonal's and the transposed positions give the others).  Then the group
+pattern is expanded: every dof row of group g holds the columns of every group h of row g,
+so a vector field's pattern is its node pattern with full b x b blocks and no
+structurally zero blocks.
 
 An element's local columns fall into runs (consecutive dofs of one group, the same local
 columns on every element of a map); its matrix enters by blocks, one offset q[a, c] per
