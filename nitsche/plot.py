@@ -299,7 +299,16 @@ def save_figure(fig, path, title=""):
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    return write_figure(fig, path, dpi=DPI)
+
+
+def write_figure(fig, path, **options):
+    """fig.savefig(path, **options), the figure closed; returns the path.  Drawn without
+    NumPy's floating-point warnings: OpenBLAS's gemm kernels can raise the overflow flag
+    on finite data (mplot3d's projection of a surface's faces, np.dot of a 4 x 4 matrix
+    and vectors of size 1), which would print "overflow encountered in dot"."""
+    with np.errstate(over="ignore", under="ignore"):
+        fig.savefig(path, **options)
     plt.close(fig)
     return path
 
@@ -327,9 +336,7 @@ def plot_convergence(rows, path, rate=None, title=""):
     ax.legend()
     ax.set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
+    return write_figure(fig, path, dpi=DPI)
 
 
 def plot_path(steps, path, title=""):
@@ -356,6 +363,4 @@ def plot_path(steps, path, title=""):
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
+    return write_figure(fig, path, dpi=DPI)

@@ -1,7 +1,12 @@
-"""The solution figure's binned multiplier image (nitsche.plot.binned_mean)."""
+"""The solution figure's binned multiplier image (nitsche.plot.binned_mean); figures written
+without spurious floating-point warnings (write_figure)."""
 import numpy as np
 
-from nitsche.plot import binned_mean
+import warnings
+
+import pytest
+
+from nitsche.plot import binned_mean, write_figure
 
 
 def test_binned_mean_is_the_weighted_mean_per_bin():
@@ -39,3 +44,31 @@ def test_binned_mean_in_chunks_is_the_same_picture():
     pieces, same = binned_mean(x, y, v, w, most=20, chunk=333)
     assert same == extent and np.array_equal(np.isnan(pieces), np.isnan(whole))
     assert np.nanmax(np.abs(pieces - whole)) < 1e-14 * np.nanmax(np.abs(whole))
+
+
+def test_write_figure_draws_a_3d_surface_without_the_blas_overflow_flag(tmp_path, monkeypatch):
+    """mplot3d projects the faces with np.dot, where OpenBLAS can raise the overflow flag on
+    finite data ("overflow encountered in dot" printed by `nitsche run`): simulated here by
+    an overflow in the projection, which plain savefig reports and write_figure does not."""
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d import proj3d
+    project = proj3d._scale_proj_transform_vectors
+
+    def flagged(vecs, axes):
+        np.float64(1e308) * np.float64(10.0)  # sets the overflow flag, as the BLAS kernel did
+        return project(vecs, axes)
+    monkeypatch.setattr(proj3d, "_scale_proj_transform_vectors", flagged)
+
+    def figure():
+        fig = plt.figure()
+        X, Y = np.meshgrid(np.linspace(0, 1, 5), np.linspace(0, 1, 5))
+        fig.add_subplot(projection="3d").plot_surface(X, Y, X * Y)
+        return fig
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        fig = figure()
+        with pytest.raises(RuntimeWarning, match="overflow"):
+            fig.savefig(tmp_path / "plain.png")
+        plt.close(fig)
+        path = write_figure(figure(), tmp_path / "written.png", dpi=50)
+    assert path.stat().st_size > 0 and not plt.get_fignums()

@@ -154,6 +154,7 @@ def figures(problem, result, p, outdir):
     import matplotlib.pyplot as plt
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
     from nitsche.io import vertex_values
+    from nitsche.plot import write_figure
     paths = []
     fu, fw = problem.by_name["u"], problem.by_name["w"]
     mesh = fu.mesh
@@ -188,10 +189,7 @@ def figures(problem, result, p, outdir):
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_zlabel("z")
-    path = os.path.join(outdir, "cube_principal_stress.png")
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    paths.append(path)
+    paths.append(write_figure(fig, os.path.join(outdir, "cube_principal_stress.png"), dpi=130))
 
     m = fw.mesh
     wv = vertex_values(fw, result["w"])
@@ -213,11 +211,8 @@ def figures(problem, result, p, outdir):
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_zlabel("w")
-    path = os.path.join(outdir, "membrane_deflection.png")
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    paths.append(path)
+    paths.append(write_figure(fig, os.path.join(outdir, "membrane_deflection.png"), dpi=130))
     return paths
 
 

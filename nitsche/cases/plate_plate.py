@@ -138,6 +138,7 @@ def figures(problem, result, p, outdir):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
+    from nitsche.plot import write_figure
     v = problem.constraint_values(result.x)["contact"]
     (xq, lam), area = contact_points(v), contact_area(v)
     if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
@@ -172,7 +173,4 @@ def figures(problem, result, p, outdir):
     ax3.set_ylabel("y")
     ax3.set_title(f"contact region, area {area:.4g}")
     fig.tight_layout()
-    path = os.path.join(outdir, "plate_plate.png")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return [path]
+    return [write_figure(fig, os.path.join(outdir, "plate_plate.png"), dpi=120)]

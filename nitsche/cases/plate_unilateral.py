@@ -142,6 +142,7 @@ def figures(problem, result, p, outdir):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from nitsche.plot import write_figure
     lines, total = edge_reactions(problem, result.x), support_reaction(problem, result.x)
     if outdir is None:  # a rank other than 0 under mpirun: its part is in the data above
         return []
@@ -166,7 +167,4 @@ def figures(problem, result, p, outdir):
     ax2.set_title(f"total reaction {total:.6f}, load {-p.f:.6f}")
     ax2.legend()
     fig.tight_layout()
-    path = os.path.join(outdir, "plate_unilateral.png")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return [path]
+    return [write_figure(fig, os.path.join(outdir, "plate_unilateral.png"), dpi=120)]

@@ -217,7 +217,7 @@ def figures(problem, result, p, outdir):
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
     from nitsche.io import vertex_values
-    from nitsche.plot import cell_colours
+    from nitsche.plot import cell_colours, write_figure
 
     parts = problem.split(result.x)
     f1, f2 = problem.by_name["u1"], problem.by_name["u2"]
@@ -255,9 +255,7 @@ def figures(problem, result, p, outdir):
     fig.suptitle(f"two membranes, {p.method}, P{degree}, level {level}")
     fig.tight_layout()
     path = os.path.join(outdir, "membranes.png")
-    fig.savefig(path, dpi=120, bbox_inches="tight")  # the 3D panel's labels reach outside
-    plt.close(fig)
-    return [path]
+    return [write_figure(fig, path, dpi=120, bbox_inches="tight")]  # the 3D panel's labels reach outside
 
 
 def study_figures(rows, p, degree, outdir):
