@@ -637,7 +637,10 @@ class Term:
         Over all elements a call passes the pieces of the per-element data stored on the
         device (Chunked) as they are; what crosses per call is the element dofs x[dofs] (a
         gather on the host, where x lives) and the parameters, and back the outputs (on the
-        CPU without a copy); given elements, their rows are gathered on the host."""
+        CPU without a copy); given elements, their rows are gathered on the host.  A call's
+        outputs are handed out once the next call is dispatched (JAX dispatches
+        asynchronously), so that the caller's work on them (the scatter into the Hessian's
+        data) and the next gather run beside that kernel."""
         dofs = self.field_dofs if elements is None else [d[elements] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
         dispatched = None  # the call before: its outputs are handed out once the next one runs
