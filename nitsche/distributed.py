@@ -214,13 +214,6 @@ class DistributedProblem:
         x[self.layout.dofs] += solve(self.matrix, -rhs)
         return x
 
-    def check_finite(self, x):
-        """Problem.check_finite on every rank's constraint values."""
-        bad = sum(self.comm.allgather(self.local._ingredients(x)[1]), [])
-        if bad:
-            raise ValueError("; ".join(bad) + "; check the gap and multiplier (log, sqrt, "
-                             "division, data) and the initial guess x0")
-
     def non_finite(self, x):
         """Problem.non_finite: the reasons of the ranks that have one."""
         return "; ".join(dict.fromkeys(self.comm.allgather(self.local.non_finite(x))))

@@ -28,6 +28,7 @@ import inspect
 import math
 from typing import Callable, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -176,6 +177,15 @@ def _ball(t, radius):
             jnp.where(inside, 0.5 * t2, radius * norm - 0.5 * radius ** 2))
 
 
+def nan_unless_finite(*values):
+    """0 where every value is finite, NaN otherwise, and no derivative: added to a
+    constraint's density, J_h (or the residual) is not finite where g, lambda or alpha
+    is not, which the projection could hide ([lambda - NaN/alpha]_+ = 0 would switch the
+    constraint off there); Newton's method then names the ingredient (Problem.non_finite)."""
+    finite = jnp.all(jnp.stack([jnp.all(jnp.isfinite(v)) for v in values]))
+    return jax.lax.stop_gradient(jnp.where(finite, 0.0, jnp.nan))
+
+
 class Projection(NamedTuple):
     """The projection P onto the constraint's set K and, where it has one, its potential
     phi (grad phi = P); for vectors the first component is the normal one.  A value (a
@@ -271,17 +281,19 @@ class Constraint:
     def pointwise(self):
         """The Nitsche density -1/2 alpha |lambda|^2 + alpha phi(lambda - g/alpha), or, for a
         residual constraint, the pair (c, q) = ((-P(s), theta alpha (P(s) - lambda)), (g, lambda))
-        of r_theta(u; v) = int c . Dq[v]."""
+        of r_theta(u; v) = int c . Dq[v]; NaN where g, lambda or alpha is not finite."""
         parts, projection, theta = self._parts(), self.projection, self.theta
 
         def density(args):
             g, lam, alpha = parts(args)
-            return -0.5 * alpha * jnp.sum(lam ** 2) + alpha * projection.potential(lam - g / alpha)
+            return (-0.5 * alpha * jnp.sum(lam ** 2) + alpha * projection.potential(lam - g / alpha)
+                    + nan_unless_finite(g, lam, alpha))
 
         def pairs(args):
             g, lam, alpha = (jnp.atleast_1d(v) for v in parts(args))
             P = projection.project(lam - g / alpha)
-            return jnp.concatenate([-P, theta * alpha * (P - lam)]), jnp.concatenate([g, lam])
+            c = jnp.concatenate([-P, theta * alpha * (P - lam)]) + nan_unless_finite(g, lam, alpha)
+            return c, jnp.concatenate([g, lam])
         return pairs if self.residual else density
 
     def values(self):

@@ -263,7 +263,6 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
         t = time.perf_counter()
         x = lifted(problem, x0, x, lin)
         timings["lift"] = time.perf_counter() - t
-    problem.check_finite(x)  # a NaN gap, multiplier or scaling: an error that names it
     x_ref = with_free(problem, problem.initial(np.zeros(problem.ndofs)), 0.0)
     ref = residual_scale(problem, x_ref, rtol)  # None: scaled by the initial gradient (below)
     residuals, reason, converged, it, E = [], "", False, 0, np.nan
