@@ -117,6 +117,18 @@ def test_a_nan_gap_is_an_error_that_names_it():
         p.minimize()
 
 
+def test_a_nan_gap_makes_j_h_nan_where_the_projection_would_hide_it():
+    """[lambda - NaN/alpha]_+ = 0 would switch the constraint off (J_h finite); the density's
+    check makes J_h NaN there (Newton's first system then names the gap), without a
+    derivative: the gradient stays that of the other parts."""
+    p = obstacle_problem()
+    x = p.initial(None)
+    E, g = p.assembler.gradient(x)
+    assert np.isnan(E) and np.isnan(p.energy(x)) and np.all(np.isfinite(g))
+    finite = obstacle_problem(gap=lambda u, x: u - jnp.where(x[0] > 0.75, 0.5, -0.1))
+    assert np.isfinite(finite.energy(x))
+
+
 def test_a_nan_multiplier_is_an_error_that_names_it():
     p = obstacle_problem(gap=lambda u: u.value + 0.1,
                          multiplier=lambda u, x: -lap(u) + jnp.where(x[1] < 0.2, jnp.nan, 0.0))
