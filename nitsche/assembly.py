@@ -56,6 +56,11 @@ from .pattern import Pattern
 # so runs on coarse meshes with many Newton steps paid far more (compression --level 0:
 # 4.2 -> 14.5 s CPU; block-friction 3.2 -> 4.1 s); 2^14 alone has the same padding.
 CHUNK_POINTS = (2 ** 10, 2 ** 15)
+# The large call holds at most this many Hessian entries (elements x points x local dofs^2,
+# the Hessian kernel's output and the size of its temporaries): heavier elements take fewer
+# per call, so that a call's arrays stay in the caches (docs/performance.md, "Kernel calls
+# of heavy elements (session 28)"); 2D P1 scalar terms keep their 2^15 points.
+WORK_PER_CALL = 2 ** 19
 # A term's last call takes a smaller rung than the small chunk (last_call) only where the
 # padding it saves, in points x (local dofs)^2 (the Hessian kernel's contraction, about 7 ns
 # each: an ironing contact term's call of 336 elements, 3 points, 100 dofs, 67 ms), is at
@@ -168,6 +173,15 @@ def elements_per_call(points, nq):
     (so that the calls' pieces of per-element float data start 64-byte aligned: Chunked)."""
     n = max(1, points // nq)
     return n - n % 8 if n >= 8 else n
+
+
+def call_sizes(nq, element_work):
+    """(small, large) elements per kernel call for elements of nq points and element_work
+    Hessian entries: CHUNK_POINTS points, the large call at most WORK_PER_CALL entries and
+    never below the small one."""
+    small = elements_per_call(CHUNK_POINTS[0], nq)
+    large = elements_per_call(min(CHUNK_POINTS[1], WORK_PER_CALL * nq // element_work), nq)
+    return small, max(small, large)
 
 
 def last_call(n, small):
@@ -321,7 +335,6 @@ class Term:
         self.nel, self.nq = W.shape if like is None else (like.nel, like.nq)
         self.has_normal = measure.normals is not None if like is None else like.has_normal
         self.fields = [by_name[name] for name, _, _ in self.layout]
-        self.chunks = tuple(elements_per_call(c, self.nq) for c in CHUNK_POINTS)
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
         # tabulation R with the inverse Jacobians J and how its rows are formed (maps)
         self.T, self.J, self.maps, self.dofs, self.kept = [], [], [], [], []
@@ -329,6 +342,7 @@ class Term:
                        for (name, parts, _) in self.layout]
         k = sum(dofs.shape[1] for _, dofs in tabulations)  # local dofs
         self.element_work = like.element_work if like is not None else self.nq * k ** 2
+        self.chunks = call_sizes(self.nq, self.element_work)
         while tabulations:  # (each host tabulation dropped once stored)
             T, dofs = tabulations.pop(0)
             mapped = isinstance(T, Mapped)
