@@ -657,21 +657,24 @@ class Term:
         data) and the next gather run beside that kernel."""
         dofs = self.field_dofs if elements is None else [d[elements] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
-        dispatched = None  # the call before: its outputs are handed out once the next one runs
+
+        def outputs(s, chunk, out):
+            return s, [host(o)[:max(0, min(chunk, nel - s))] for o in out]
+        before = None  # the call dispatched before: (start, chunk, its outputs)
         for i, (s, chunk) in enumerate(self.blocks(nel)):
             rows = None if elements is None else _pad(np.asarray(elements[s:s + chunk]), chunk)
             Ts = [a if a.shape[0] == 1 else a.parts[i] if rows is None else a.rows(rows) for a in self.tables]
             u = [_pad(x[d[s:s + chunk]], chunk) for d in dofs]  # the call's gather (host: x lives there)
             out = self.kernel(kind, chunk)(*Ts, *u, *self.per_point(i, chunk, rows), self.parameter_data(chunk))
-            if dispatched is not None:
-                yield dispatched[0], [host(o)[:max(0, min(dispatched[1], nel - dispatched[0]))] for o in dispatched[2]]
-            dispatched = (s, chunk, out)
-        if dispatched is not None:
-            yield dispatched[0], [host(o)[:max(0, min(dispatched[1], nel - dispatched[0]))] for o in dispatched[2]]
+            if before is not None:
+                yield outputs(*before)
+            before = (s, chunk, out)
+        if before is not None:
+            yield outputs(*before)
 
     def run(self, kind, x, elements=None):
         """The kernel's outputs on all elements (or on the given ones): each call's outputs
-        copied into arrays of all elements as they come (peak: one copy plus one call's)."""
+        copied into arrays of all elements as they come (peak: one copy plus two calls')."""
         nel = self.nel if elements is None else len(elements)
         outs = None
         for s, got in self.calls(kind, x, elements):
