@@ -3,9 +3,9 @@
 For a case's problem at a level, each term's 'full' kernel (energy, gradient, Hessian) is
 compiled for each given number of elements per call and called on the term's first
 elements at a state near the initial guess; the medians of 3 runs of CPU time per element
-(all threads, what a shared machine disturbs least) are printed beside the call's Hessian
-entries (elements x points x local dofs^2: its output and the size of its temporaries)
-and the term's own (small, large) sizes (Term.chunks).  Large calls of heavy elements
+(all threads, what a shared machine disturbs least) and of wall time are printed beside
+the call's Hessian entries (elements x points x local dofs^2: its output and the size of
+its temporaries) and the term's own (small, large) sizes (Term.chunks).  Large calls of heavy elements
 leave the caches: the knee shows where.
 
     python benchmarks/kernel_chunk.py ironing 3 [--set K=V ...] [--chunks 64 256 1024 4096]
@@ -24,20 +24,22 @@ from run_ratio import write_results
 
 
 def per_element(term, x, chunk, calls):
-    """CPU seconds per element of the term's Hessian kernel on `chunk` elements (median of 3)."""
+    """(CPU, wall) seconds per element of the term's Hessian kernel on `chunk` elements
+    (medians of 3)."""
     rows = np.arange(chunk) % term.nel
     kernel = term.kernel("full", chunk)
     args = ([a if a.shape[0] == 1 else a.rows(rows) for a in term.tables]
             + [x[d[rows]] for d in term.field_dofs] + list(term.per_point(0, chunk, rows))
             + [term.parameter_data(chunk)])
     [np.asarray(o) for o in kernel(*args)]
-    times = []
+    cpu, wall = [], []
     for _ in range(3):
-        t = time.process_time()
+        c, t = time.process_time(), time.perf_counter()
         for _ in range(calls):
             [np.asarray(o) for o in kernel(*args)]
-        times.append((time.process_time() - t) / calls / chunk)
-    return statistics.median(times)
+        cpu.append((time.process_time() - c) / calls / chunk)
+        wall.append((time.perf_counter() - t) / calls / chunk)
+    return statistics.median(cpu), statistics.median(wall)
 
 
 def main():
@@ -59,12 +61,12 @@ def main():
         k = round((t.element_work / t.nq) ** 0.5)
         print(f"term {i}: {t.nel} elements, {t.nq} points, {k} local dofs, calls of {t.chunks} elements")
         for chunk in sorted(c - c % 8 if c >= 8 else c for c in args.chunks):
-            seconds = per_element(t, x, chunk, max(3, 20000 // chunk))
+            cpu, wall = per_element(t, x, chunk, max(3, 20000 // chunk))
             rows.append(dict(term=i, elements=t.nel, points=t.nq, dofs=k, chunk=chunk,
-                             entries=chunk * t.element_work, us_per_element=seconds * 1e6,
-                             own_chunks=list(t.chunks)))
-            print(f"  {chunk:6d} elements per call: {seconds * 1e6:8.3f} us per element, "
-                  f"{chunk * t.element_work / 2 ** 20:7.2f} Mi Hessian entries per call")
+                             entries=chunk * t.element_work, cpu_us_per_element=cpu * 1e6,
+                             wall_us_per_element=wall * 1e6, own_chunks=list(t.chunks)))
+            print(f"  {chunk:6d} elements per call: {cpu * 1e6:8.3f} us CPU, {wall * 1e6:8.3f} us wall "
+                  f"per element, {chunk * t.element_work / 2 ** 20:7.2f} Mi Hessian entries per call")
     print("load average", os.getloadavg())
     if args.name:
         write_results(args.name, rows, f"{args.case} level {args.level} {' '.join(args.set)}")
