@@ -70,5 +70,6 @@ def test_write_figure_draws_a_3d_surface_without_the_blas_overflow_flag(tmp_path
         with pytest.raises(RuntimeWarning, match="overflow"):
             fig.savefig(tmp_path / "plain.png")
         plt.close(fig)
-        path = write_figure(figure(), tmp_path / "written.png", dpi=50)
-    assert path.stat().st_size > 0 and not plt.get_fignums()
+        fig = figure()
+        path = write_figure(fig, tmp_path / "written.png", dpi=50)
+    assert path.stat().st_size > 0 and not plt.fignum_exists(fig.number)  # written and closed
