@@ -168,14 +168,11 @@ def residual_scale(problem, x_ref, rtol):
     return ref if np.isfinite(ref) and ref > 0 else None
 
 
-def forcing(residual, rtol, previous=None):
-    """Relative accuracy of the linear solve at relative residual r, after r_prev (inexact
-    Newton): eta = min(1e-2, max(r, 0.9 (r / r_prev)^2, rtol / (10 r))), so that |grad|
-    falls like r^2, no faster than the last step's observed contraction makes useful
-    (Eisenstat and Walker's choice 2: the steps of a changing active set contract
-    linearly) and the last step is solved no more accurately than the stopping test needs."""
-    eta = residual if previous is None else max(residual, 0.9 * (residual / previous) ** 2)
-    return min(FORCING_MAX, max(eta, 0.1 * rtol / residual))
+def forcing(residual, rtol):
+    """Relative accuracy of the linear solve at relative residual r (inexact Newton):
+    eta = min(1e-2, max(r, rtol / (10 r))), so that |grad| falls like r^2 and the last
+    step is solved no more accurately than the stopping test needs."""
+    return min(FORCING_MAX, max(residual, 0.1 * rtol / residual))
 
 
 class NotConverged(RuntimeError):
@@ -325,7 +322,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
         t = time.perf_counter()
         convexified = False
         try:
-            dx, M = lin.solve(A, -g, rtol=forcing(res / ref, tol, residuals[-2] if it else None)), A
+            dx, M = lin.solve(A, -g, rtol=forcing(res / ref, tol)), A
             convexified = problem.symmetric and not dot(problem, g, dx) < 0
         except IndefiniteHessian as e:
             if not problem.symmetric:

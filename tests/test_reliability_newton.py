@@ -59,18 +59,6 @@ def test_a_reduction_stops_at_that_fraction_of_the_first_residual():
     assert p.minimize(reduction=1e-12).iterations == full.iterations  # rtol comes first
 
 
-def test_the_forcing_term_follows_the_observed_contraction():
-    """eta = min(1e-2, max(r, 0.9 (r / r_prev)^2, rtol / (10 r))): a step that contracted
-    only by 10 (an active set still changing) asks no more of the next solve than about
-    that; a quadratic one keeps eta = r; near rtol the stopping test's need decides."""
-    from nitsche.newton import forcing
-    assert forcing(1e-3, 1e-10) == 1e-3
-    assert forcing(1e-3, 1e-10, 1e-2) == pytest.approx(9e-3)  # linear: 9x looser than r
-    assert forcing(1e-3, 1e-10, 1.0) == 1e-3                   # quadratic: r
-    assert forcing(0.5, 1e-10, 0.6) == 1e-2                    # never looser than 1e-2
-    assert forcing(1e-7, 1e-10, 1e-5) == pytest.approx(1e-4)   # the last step: rtol / (10 r)
-
-
 # -- 2. a converged minimization is a minimum -------------------------------------------
 
 @pytest.mark.parametrize("solver", SOLVERS)
