@@ -54,11 +54,12 @@ def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=
     a coarser level is the next one's starting guess, and so, coarse_rtol given, is solved
     only to the relative residual max(rtol, coarse_rtol) (COARSE_RTOL: far below the
     interpolation error of I u_{k-1}, which the finer level's Newton steps remove), and,
-    coarse_reduction given, only until its residual is that fraction of its first one
-    (newton's reduction: level k starts from the interpolation error of I u_{k-1}, level
-    k + 1 from that of I u_k, measured the same (two membranes' P1 fields: 1.1, 1.1) or
-    4x smaller (the obstacle: 8.8e-4, 2.2e-4); COARSE_REDUCTION leaves on level k 25-100x
-    less than level k + 1 starts from)."""
+    coarse_reduction given, a level after the first only until its residual is that
+    fraction of its first one (newton's reduction: level k starts from the interpolation
+    error of I u_{k-1}, level k + 1 from that of I u_k, measured the same (two membranes'
+    P1 fields: 1.1, 1.1) or 4x smaller (the obstacle: 8.8e-4, 2.2e-4); COARSE_REDUCTION
+    leaves on level k 25-100x less than level k + 1 starts from; the first level starts
+    from x0 or zero, not from an interpolation error)."""
     newton_options.setdefault("lift", False)
     prev, solve, levels = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o)), list(levels)
     check = newton_options.pop("minimum_check", True)
@@ -68,7 +69,7 @@ def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=
         x0 = prolongate(prev[0], prev[1].x, problem) if prev else None
         prev = result = None  # not held here through this solve (solve_nested drops its own)
         last = k == levels[-1]
-        coarse = dict(reduction=coarse_reduction) if coarse_reduction and not last else {}
+        coarse = dict(reduction=coarse_reduction) if coarse_reduction and x0 is not None and not last else {}
         result = solve(problem, x0, minimum_check=check and last,
                        rtol=rtol if last or coarse_rtol is None else max(rtol, coarse_rtol),
                        **coarse, **newton_options)
