@@ -143,10 +143,9 @@ def check_options(rtol, maxiter, reduction=None):
     the option otherwise."""
     if isinstance(maxiter, bool) or not isinstance(maxiter, numbers.Integral) or maxiter < 0:
         raise ValueError(f"maxiter (the Newton iteration limit) must be an integer >= 0, not {maxiter!r}")
-    for name, value, what, example in (("rtol", rtol, "relative residual tolerance", "1e-10"),
-                                       ("reduction", reduction, "residual reduction", "1e-2")):
-        if name == "reduction" and value is None:
-            continue
+    given = [("rtol", rtol, "relative residual tolerance", "1e-10")]
+    given += [("reduction", reduction, "residual reduction", "1e-2")] if reduction is not None else []
+    for name, value, what, example in given:
         if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0 < value < 1:
             raise ValueError(f"{name} (Newton's {what}) must be a number in (0, 1), "
                              f"e.g. {example}, not {value!r}")

@@ -69,7 +69,8 @@ def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=
         x0 = prolongate(prev[0], prev[1].x, problem) if prev else None
         prev = result = None  # not held here through this solve (solve_nested drops its own)
         last = k == levels[-1]
-        coarse = dict(reduction=coarse_reduction) if coarse_reduction and x0 is not None and not last else {}
+        reduced = coarse_reduction and x0 is not None and not last
+        coarse = dict(reduction=coarse_reduction) if reduced else {}
         result = solve(problem, x0, minimum_check=check and last,
                        rtol=rtol if last or coarse_rtol is None else max(rtol, coarse_rtol),
                        **coarse, **newton_options)
@@ -89,9 +90,9 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     and result, or, when a level fails (Newton, or an error such as MemoryError on a finer
     level), those of the finest converged level and failure = dict(level, reason); a
     failure on the first level returns its unconverged result (an error there is raised).
-    The levels below `level` are solved to COARSE_RTOL or to COARSE_REDUCTION of their
-    first residual only (nested's coarse_rtol and coarse_reduction), unless the options'
-    rtol is looser.  A converged coarser level keeps its result without its problem, which
+    The levels below `level` are solved to COARSE_RTOL only, those after the first also
+    only to COARSE_REDUCTION of their first residual (nested's coarse_rtol and
+    coarse_reduction), unless the options' rtol is looser.  A converged coarser level keeps its result without its problem, which
     is built again only if a finer level fails, so that its memory is not held through the
     finer solves; it is then solved on to the options' rtol and checked."""
     prev, its = None, []
