@@ -66,7 +66,8 @@ def build(k):
 
 t0, c0 = time.perf_counter(), time.process_time()
 its = []
-coarse = {"coarse_rtol": study.COARSE_RTOL} if hasattr(study, "COARSE_RTOL") else {}  # as `nitsche run`
+coarse = {option: getattr(study, name) for option, name in (("coarse_rtol", "COARSE_RTOL"),
+              ("coarse_reduction", "COARSE_REDUCTION")) if hasattr(study, name)}  # as `nitsche run`
 for k, problem, result in study.nested(build, range(level + 1), case.solve, **coarse):
     its.append(result.iterations)
     finest = result.seconds

@@ -233,7 +233,8 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
         make = [lambda n=n: build_ours(problem, refined_tensor_mesh(problem, mesh_spec[0], n), alpha0)
                 for n in mesh_spec]
     its, levels, newton_seconds = [], [], 0.0
-    coarse = {"coarse_rtol": study.COARSE_RTOL} if hasattr(study, "COARSE_RTOL") else {}  # as `nitsche run`
+    coarse = {option: getattr(study, name) for option, name in (("coarse_rtol", "COARSE_RTOL"),
+                  ("coarse_reduction", "COARSE_REDUCTION")) if hasattr(study, name)}  # as `nitsche run`
     for k, problem_k, result_k in study.nested(lambda i: make[i](), range(len(make)), solve, **coarse):
         result_k.check()
         for key in ("assembly", "solve", "line_search", "minimum_check", "compile"):

@@ -138,13 +138,17 @@ def lifted(problem, x0, plain, lin):
     return x if np.all(np.isfinite(x)) and np.isfinite(problem.energy(x)) else plain
 
 
-def check_options(rtol, maxiter):
-    """maxiter an integer >= 0, rtol in (0, 1): a ValueError naming the option otherwise."""
+def check_options(rtol, maxiter, reduction=None):
+    """maxiter an integer >= 0, rtol and reduction (None or) in (0, 1): a ValueError naming
+    the option otherwise."""
     if isinstance(maxiter, bool) or not isinstance(maxiter, numbers.Integral) or maxiter < 0:
         raise ValueError(f"maxiter (the Newton iteration limit) must be an integer >= 0, not {maxiter!r}")
-    if isinstance(rtol, bool) or not isinstance(rtol, numbers.Real) or not 0 < rtol < 1:
-        raise ValueError(f"rtol (Newton's relative residual tolerance) must be a number in (0, 1), "
-                         f"e.g. 1e-10, not {rtol!r}")
+    given = [("rtol", rtol, "relative residual tolerance", "1e-10")]
+    given += [("reduction", reduction, "residual reduction", "1e-2")] if reduction is not None else []
+    for name, value, what, example in given:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 0 < value < 1:
+            raise ValueError(f"{name} (Newton's {what}) must be a number in (0, 1), "
+                             f"e.g. {example}, not {value!r}")
 
 
 def residual_scale(problem, x_ref, rtol):
@@ -232,7 +236,7 @@ class Result:
 
 
 def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None, lift=True,
-           minimum_check=True):
+           minimum_check=True, reduction=None):
     """Minimize J_h from x0 (fixed dofs are set to their values; lift: where x0's differ
     from the prescribed ones, the increment is carried into the interior first, see
     Problem.lift, unless that start is not finite); for a problem with
@@ -240,7 +244,9 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     steps, backtracking until |r| falls by (1 - 1e-4 step), no minimum check.
 
     Stops when |grad J_h|_free <= rtol * ref (see residual_scale; x_ref = the initial
-    guess with all free dofs zero), or when a full Newton step is below round-off.
+    guess with all free dofs zero), or when a full Newton step is below round-off;
+    reduction given, already when |grad J_h|_free <= reduction * |grad J_h(x0)|_free (a
+    coarser level of a nested chain: a fraction of the interpolation error it starts from).
     Each step solves H dx = -grad on the free dofs (to the relative accuracy `forcing`:
     exactly by a fresh factorization, or by CG preconditioned with an earlier one) and
     backtracks (Armijo) on J_h.  A stationary point is reported converged only if it is
@@ -251,7 +257,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     check decides).  Never returns silently unconverged:
     see Result.converged; Result.feasible says whether a constraint looks infeasible.
     """
-    check_options(rtol, maxiter)
+    check_options(rtol, maxiter, reduction)
     t_start = time.perf_counter()
     c0 = assembly.compile_seconds[0]
     timings = {"assembly": 0.0, "solve": 0.0, "line_search": 0.0, "minimum_check": 0.0}
@@ -298,8 +304,11 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
         residuals.append(res / ref)
         if progress:
             progress(it, res / ref, E)
-        if res <= rtol * ref:
-            converged, reason = True, f"relative residual {res / ref:.1e} <= {rtol:.0e}"
+        if it == 0:  # the stopping test's relative residual
+            tol = max(rtol, reduction * residuals[0]) if reduction else rtol
+        if res <= tol * ref:
+            converged, reason = True, f"relative residual {res / ref:.1e} <= " + (
+                f"{rtol:.0e}" if tol == rtol else f"{tol:.1e} ({reduction:.0e} of the first)")
             break
         if shifts and res / ref > DIVERGED * max(residuals[0], 1.0):
             reason = (f"Newton diverged on a non-convex J_h: the residual grew to {res / ref:.1e} "
@@ -311,7 +320,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
         t = time.perf_counter()
         convexified = False
         try:
-            dx, M = lin.solve(A, -g, rtol=forcing(res / ref, rtol)), A
+            dx, M = lin.solve(A, -g, rtol=forcing(res / ref, tol)), A
             convexified = problem.symmetric and not dot(problem, g, dx) < 0
         except IndefiniteHessian as e:
             if not problem.symmetric:

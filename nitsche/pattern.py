@@ -291,7 +291,12 @@ class Scatter:
             return
         total = np.zeros_like(data)
         for start, H in pieces:
-            np.add.at(total, self.P[start:start + len(H)].ravel(), H.ravel())
+            H = H.reshape(len(H), -1)
+            nonzero = H.any(axis=1)
+            P = self.P[start:start + len(H)]
+            if not nonzero.all():
+                P, H = P[nonzero], H[nonzero]
+            np.add.at(total, P.ravel(), H.ravel())
         data += total
 
     def add(self, data, H, start=0):

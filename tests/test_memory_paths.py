@@ -24,7 +24,7 @@ def problem_of(name, level, degree=1, sets=None):
 def test_pieces_scatter_as_all_elements_at_once(name, level, degree, sets):
     """Scatter.add_pieces of a term's element matrices given in uneven pieces equals add()
     of all of them, bit for bit: runs of one column (scalar P1/P2) and node blocks (the
-    solid's vector field, by strides)."""
+    solid's vector field, by strides); half of the elements' matrices zero (+0 or -0)."""
     problem = problem_of(name, level, degree, sets)
     a = problem.assembler
     rng = np.random.default_rng(3)
@@ -32,6 +32,8 @@ def test_pieces_scatter_as_all_elements_at_once(name, level, degree, sets):
     for t, scatter in zip(a.terms, a.scatter):
         k = t.global_dofs.shape[1]
         H = rng.standard_normal((t.nel, k, k))
+        H[rng.random(t.nel) < 0.5] = 0.0  # elements off a contact set: not scattered by add_pieces
+        H[np.flatnonzero(~H.any(axis=(1, 2)))[:3]] = -0.0
         base = rng.standard_normal(a.nnz)  # other terms' sums already there
         expect = base.copy()
         scatter.add(expect, H)

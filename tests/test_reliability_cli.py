@@ -309,6 +309,27 @@ def test_the_coarser_levels_of_a_nested_chain_are_solved_to_the_coarse_tolerance
     assert np.isclose(coarse[-1].energy, full[-1].energy, rtol=1e-12, atol=0)
 
 
+@pytest.mark.parametrize("name", ["obstacle", "two-membrane"])
+def test_the_coarser_levels_stop_at_a_fraction_of_their_first_residual(name):
+    """nested(coarse_reduction): a coarser level after the first also stops once its residual
+    is coarse_reduction times its first one (the interpolation error it started from): fewer
+    Newton steps there, the finest level's J_h that of the chain without it, to 1e-12."""
+    from nitsche.study import COARSE_REDUCTION, COARSE_RTOL, nested
+    case = get(name)
+    p = case.parameters()
+    chains = {c: [r for _, _, r in nested(lambda k: case.problem(k, 1, p), range(4), case.solve, COARSE_RTOL, c)]
+              for c in (None, COARSE_REDUCTION)}
+    plain, reduced = chains[None], chains[COARSE_REDUCTION]
+    assert all(r.converged for r in plain + reduced)
+    assert reduced[0].residuals == plain[0].residuals  # (started from zero)
+    for r in reduced[1:-1]:
+        stop = max(COARSE_RTOL, COARSE_REDUCTION * r.residuals[0])
+        assert r.residuals[-1] <= stop < r.residuals[-2]  # the first below
+    assert reduced[-1].residuals[-1] <= 1e-10 and "of the first" not in reduced[-1].reason
+    assert sum(r.iterations for r in reduced[:-1]) < sum(r.iterations for r in plain[:-1])
+    assert np.isclose(reduced[-1].energy, plain[-1].energy, rtol=1e-12, atol=0)
+
+
 def test_a_study_that_fails_keeps_the_levels_it_finished(tmp_path, monkeypatch, capsys):
     fail_at(monkeypatch, "dirichlet", 2, MemoryError)
     out = tmp_path / "s"

@@ -31,7 +31,8 @@ def two_membranes(d):
 @pytest.mark.parametrize("option,value", [("maxiter", -1), ("maxiter", 2.5), ("maxiter", True),
                                           ("rtol", 10.0), ("rtol", 0.0), ("rtol", 1.0),
                                           ("rtol", float("nan")), ("rtol", "1e-8"),
-                                          ("solver", "magic"), ("solver", None)])
+                                          ("solver", "magic"), ("solver", None),
+                                          ("reduction", 1.0), ("reduction", "0.1")])
 def test_bad_newton_options_are_one_line_errors_naming_the_option(option, value):
     p = ni.Problem([membrane()], lambda u: 0.5 * dot(grad(u), grad(u)) - u)
     with pytest.raises(ValueError, match=rf"^{option} .*must be") as e:
@@ -44,6 +45,18 @@ def test_good_newton_options_still_run():
     assert p.minimize(maxiter=np.int64(5), rtol=0.5).converged
     r = p.minimize(maxiter=0)
     assert not r.converged and "iteration limit 0" in r.reason
+
+
+def test_a_reduction_stops_at_that_fraction_of_the_first_residual():
+    """newton(reduction=q) stops at the first residual <= q r_0, or at rtol where that comes
+    first, and says which."""
+    p = two_membranes(d=0.05)
+    full = p.minimize()
+    for q in (1e-1, 1e-3):
+        r = p.minimize(reduction=q)
+        assert r.converged and r.residuals[-1] <= q * r.residuals[0] < r.residuals[-2], r.residuals
+        assert r.iterations < full.iterations and "of the first" in r.reason
+    assert p.minimize(reduction=1e-12).iterations == full.iterations  # rtol comes first
 
 
 # -- 2. a converged minimization is a minimum -------------------------------------------
