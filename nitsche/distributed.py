@@ -504,7 +504,8 @@ class KrylovSolver:
     stats).  'gamg': CG preconditioned by GAMG (smoothed aggregation) with the near-nullspace
     of nitsche.linalg.near_nullspace (rigid-body modes), to Newton's forcing tolerance;
     'direct': when PETSc has MUMPS, its factorization divided among the ranks, P A P^T =
-    L D L^T (symmetric indefinite, 1x1 and 2x2 pivots) for a symmetric problem, else LU;
+    L D L^T (symmetric indefinite, 1x1 and 2x2 pivots) for a symmetric problem, else LU, P
+    a nested dissection where MUMPS has Scotch (mumps_ordering_options);
     without MUMPS each rank a sequential LU of the whole matrix (PCREDUNDANT).  PETSc
     options (-ksp_type, -pc_type ...) are applied last."""
 
