@@ -12,7 +12,7 @@ resident memory (MiB) after the imports, the set-up, the solve, the pieces and (
 whole problem's VTU; the PETSc options (PETSC_OPTIONS, e.g. "-pc_type redundant" for the
 direct solver without MUMPS), whether PETSc has MUMPS, each rank's seconds and count of the
 factorizations (PETSc's log events: symbolic, numeric, PCSetUp whole, MatSolve), MUMPS's
-ordering and its factor's entries (estimated, actual), the minimum check's evidence and the
+ordering, its factor's entries (estimated, actual) and flops, the minimum check's evidence and the
 load average before and after."""
 import json
 import os
@@ -78,7 +78,7 @@ def main(name, level, solver):
                mumps=PETSc.Sys.hasExternalPackage("mumps"), factorization=comm.gather(factorization, root=0),
                negative_pivots=stats["negative_pivots"], lobpcg_steps=stats["lobpcg_steps"],
                **{k: stats[k] for k in ("mumps_ordering", "factor_entries_estimated",
-                                        "factor_entries") if k in stats})
+                                        "factor_entries", "factor_flops") if k in stats})
     if comm.rank == 0:
         t, c = time.perf_counter(), time.process_time()
         serial, r = whole(case, problem, result, case.degrees[0], p)
