@@ -675,8 +675,9 @@ def mumps_ordering_options(ranks):
 def factor_stats(F):
     """MUMPS's factor F: the ordering its analysis used (INFOG(32) sequential or parallel,
     INFOG(7) which), the factor's entries summed over the ranks as the analysis estimated
-    them (INFOG(20)) and as factored (INFOG(29); MUMPS gives a count above 2^31 negated, in
-    millions), and the factorization's floating-point operations (RINFOG(3), all ranks)."""
+    them (INFOG(20)) and as factored (INFOG(29); a negative one is minus the millions, for
+    counts beyond 32-bit integers), and the factorization's floating-point operations
+    (RINFOG(3), all ranks)."""
     orderings = PARALLEL_ORDERINGS if F.getMumpsInfog(32) == 2 else SEQUENTIAL_ORDERINGS
     entries = [F.getMumpsInfog(i) for i in (20, 29)]
     entries = [n if n >= 0 else -n * 10 ** 6 for n in entries]

@@ -10,7 +10,8 @@ pictures computed from the ranks' pieces equal the whole problem's (also along t
 paths of compression, indentation and ironing, whose steps and iterations are the serial
 ones, and friction's solve hook; ironing's with a cut step on 2 ranks); alpha0's order statistics are exact without gathering;
 PETSc holds no more after each Newton step; the free vectors newton is handed have the
-length of the rank's held free dofs.
+length of the rank's held free dofs; 'direct' orders by PT-Scotch on several ranks and
+Scotch on one where MUMPS has them, and PETSc options choose another ordering.
 Skipped without petsc4py / mpirun (installed by `make petsc`)."""
 import json
 import os
@@ -125,8 +126,8 @@ def nested_dissection(run):
     automatic choice would be AMF or QAMD): PT-Scotch's on several ranks, else Scotch's;
     without them (a PETSc built against Debian's plain libmumps-dev) MUMPS's automatic one,
     and no MUMPS, no ordering reported (PCREDUNDANT)."""
-    if run["solver"] != "petsc-direct" or "mumps_ordering" not in run["stats"]:
-        return run["stats"].get("mumps_ordering")
+    if "mumps_ordering" not in run["stats"]:
+        return None
     if run["ranks"] > 1 and "pt-scotch" in run["orderings"]:
         return "pt-scotch"
     return "scotch" if "scotch" in run["orderings"] else run["stats"]["mumps_ordering"]
