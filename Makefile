@@ -31,19 +31,22 @@ system-deps:
 	fi
 
 # The distributed engine (mpirun -n N nitsche run CASE; nitsche.distributed): Debian's Open MPI,
-# MUMPS 5.5 and ScaLAPACK (built against that Open MPI; gfortran links their Fortran runtime),
-# then mpi4py, pymetis, and PETSc + petsc4py built from PyPI's sources against them (about
-# 10-15 minutes each on 2 shared cores; never a cached wheel, which may lack MUMPS); the tests in
-# tests/test_distributed.py run once this is installed.  MUMPS makes `--solver direct` a
-# factorization divided among the ranks (without it every rank factors the whole matrix).
-MPI_PACKAGES = libopenmpi-dev openmpi-bin patchelf gfortran libmumps-dev libscalapack-openmpi-dev
+# MUMPS 5.5 built with Scotch and PT-Scotch (libmumps-ptscotch-dev: libdmumps_ptscotch, next to
+# libmumps-dev's plain libdmumps, whose orderings are AMD, AMF, QAMD and PORD only) and ScaLAPACK
+# (built against that Open MPI; gfortran links their Fortran runtime), then mpi4py, pymetis, and
+# PETSc + petsc4py built from PyPI's sources against them (about 10-15 minutes each on 2 shared
+# cores; never a cached wheel, which may lack MUMPS); the tests in tests/test_distributed.py run
+# once this is installed.  MUMPS makes `--solver direct` a factorization divided among the ranks
+# (without it every rank factors the whole matrix), ordered by nested dissection (PT-Scotch).
+MPI_PACKAGES = libopenmpi-dev openmpi-bin patchelf gfortran libmumps-ptscotch-dev libscalapack-openmpi-dev
 PETSC_CONFIGURE_OPTIONS ?= --with-debugging=0 --with-fortran-bindings=0 --with-x=0 \
-  --with-mumps-include=/usr/include --with-mumps-lib=[-ldmumps,-lmumps_common,-lpord] \
+  --with-mumps-include=/usr/include \
+  --with-mumps-lib=[-ldmumps_ptscotch,-lmumps_common_ptscotch,-lpord_ptscotch] \
   --with-scalapack-lib=-lscalapack-openmpi
 PETSC_VERSION ?= 3.26.1
 $(VENV)/.petsc-installed: $(VENV)/.installed
 	@if ! command -v mpicc >/dev/null 2>&1 || ! command -v mpifort >/dev/null 2>&1 || \
-	   ! command -v patchelf >/dev/null 2>&1 || [ ! -f /usr/include/dmumps_c.h ] || \
+	   ! command -v patchelf >/dev/null 2>&1 || ! ls /usr/lib/*/libdmumps_ptscotch.so >/dev/null 2>&1 || \
 	   ! ls /usr/lib/*/libscalapack-openmpi.so >/dev/null 2>&1; then \
 	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO="sudo -n"; \
 	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq $(MPI_PACKAGES) >/dev/null; \

@@ -11,8 +11,9 @@ values the scatters move), and each rank's peak
 resident memory (MiB) after the imports, the set-up, the solve, the pieces and (rank 0) the
 whole problem's VTU; the PETSc options (PETSC_OPTIONS, e.g. "-pc_type redundant" for the
 direct solver without MUMPS), whether PETSc has MUMPS, each rank's seconds and count of the
-factorizations (PETSc's log events: symbolic, numeric, PCSetUp whole, MatSolve), the
-minimum check's evidence and the load average before and after."""
+factorizations (PETSc's log events: symbolic, numeric, PCSetUp whole, MatSolve), MUMPS's
+ordering, its factor's entries (estimated, actual) and flops, the minimum check's evidence and the
+load average before and after."""
 import json
 import os
 import resource
@@ -75,7 +76,9 @@ def main(name, level, solver):
                pieces_peak_mib=comm.gather(round(after_pieces), root=0),
                petsc_options=os.environ.get("PETSC_OPTIONS", ""), solver=result.solver,
                mumps=PETSc.Sys.hasExternalPackage("mumps"), factorization=comm.gather(factorization, root=0),
-               negative_pivots=stats["negative_pivots"], lobpcg_steps=stats["lobpcg_steps"])
+               negative_pivots=stats["negative_pivots"], lobpcg_steps=stats["lobpcg_steps"],
+               **{k: stats[k] for k in ("mumps_ordering", "factor_entries_estimated",
+                                        "factor_entries", "factor_flops") if k in stats})
     if comm.rank == 0:
         t, c = time.perf_counter(), time.process_time()
         serial, r = whole(case, problem, result, case.degrees[0], p)

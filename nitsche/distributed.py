@@ -497,7 +497,8 @@ class KrylovSolver:
     stats).  'gamg': CG preconditioned by GAMG (smoothed aggregation) with the near-nullspace
     of nitsche.linalg.near_nullspace (rigid-body modes), to Newton's forcing tolerance;
     'direct': when PETSc has MUMPS, its factorization divided among the ranks, P A P^T =
-    L D L^T (symmetric indefinite, 1x1 and 2x2 pivots) for a symmetric problem, else LU;
+    L D L^T (symmetric indefinite, 1x1 and 2x2 pivots) for a symmetric problem, else LU, P
+    a nested dissection where MUMPS has Scotch (mumps_ordering_options);
     without MUMPS each rank a sequential LU of the whole matrix (PCREDUNDANT).  PETSc
     options (-ksp_type, -pc_type ...) are applied last."""
 
@@ -522,19 +523,32 @@ class KrylovSolver:
         else:
             ksp.setType("preonly")
             pc.setType("redundant")  # PCREDUNDANT's own solver: LU
-        self.ksp, self.kind, self.iterations = ksp, name, []
+        self.ksp, self.kind, self.iterations, self.factor = ksp, name, [], {}
         self.minimum_checks = []  # per check: lowest_eigenvalue's estimate and steps, or the negative pivots
 
     def configure(self):
-        """PETSc's options applied (last), then for MUMPS's L D L^T on several ranks
-        ICNTL(13) = 1 unless the options set it: the root front factored by MUMPS rather than
-        ScaLAPACK, so that INFOG(12) counts its negative pivots too (is_positive_definite)."""
+        """PETSc's options applied (last), then for MUMPS, where the options set none of
+        ICNTL(7), (28), (29), its ordering (mumps_ordering_options), and for its L D L^T on
+        several ranks ICNTL(13) = 1 unless the options set it: the root front factored by
+        MUMPS rather than ScaLAPACK, so that INFOG(12) counts its negative pivots too
+        (is_positive_definite)."""
         from petsc4py import PETSc
         self.ksp.setFromOptions()
         pc, options = self.ksp.getPC(), PETSc.Options()
-        if (self.dp.ranks > 1 and pc.getType() == "cholesky" and pc.getFactorSolverType() == "mumps"
+        if pc.getType() not in ("cholesky", "lu") or pc.getFactorSolverType() != "mumps":
+            return
+        if not any(options.hasName(f"mat_mumps_icntl_{i}") for i in ORDERING_ICNTL):
+            for i, value in mumps_ordering_options(self.dp.ranks).items():
+                options.setValue(f"mat_mumps_icntl_{i}", value)
+        if (self.dp.ranks > 1 and pc.getType() == "cholesky"
                 and not options.hasName("mat_mumps_icntl_13")):
             options.setValue("mat_mumps_icntl_13", 1)
+
+    def record_factor(self):
+        """MUMPS's last factorization (factor_stats), where the PC is MUMPS's."""
+        pc = self.ksp.getPC()
+        if pc.getType() in ("cholesky", "lu") and pc.getFactorSolverType() == "mumps":
+            self.factor = factor_stats(pc.getFactorMatrix())
 
     def prepare(self, problem):
         """The near-nullspace of GAMG: rigid-body modes of the vector fields, constants."""
@@ -558,6 +572,7 @@ class KrylovSolver:
         self.configure()
         x = self.dp.layout.vector()
         self.ksp.solve(self.dp.layout.vector(b), x)
+        self.record_factor()
         reason = self.ksp.getConvergedReason()
         self.iterations.append(self.ksp.getIterationNumber())
         R = PETSc.KSP.ConvergedReason
@@ -585,6 +600,7 @@ class KrylovSolver:
         self.ksp.setOperators(A.mat)
         self.configure()
         self.ksp.setUp()
+        self.record_factor()
         F = self.symmetric_factor()
         if F is not None:
             if self.ksp.getPC().getFailedReason():
@@ -618,7 +634,49 @@ class KrylovSolver:
                     lobpcg_estimates=[c["estimate"] for c in self.minimum_checks if "estimate" in c],
                     lobpcg_steps=[c["steps"] for c in self.minimum_checks if "steps" in c],
                     negative_pivots=[c["negative_pivots"] for c in self.minimum_checks
-                                     if "negative_pivots" in c])
+                                     if "negative_pivots" in c], **self.factor)
+
+
+# MUMPS's controls of the ordering: ICNTL(7) the sequential one, ICNTL(28) sequential (1) or
+# parallel (2) analysis, ICNTL(29) the parallel one
+ORDERING_ICNTL = (7, 28, 29)
+# INFOG(7) after a sequential analysis (INFOG(32) = 1), after a parallel one (INFOG(32) = 2)
+SEQUENTIAL_ORDERINGS = {0: "amd", 1: "given", 2: "amf", 3: "scotch", 4: "pord", 5: "metis", 6: "qamd"}
+PARALLEL_ORDERINGS = {1: "pt-scotch", 2: "parmetis"}
+
+
+def mumps_has(ordering):
+    """Whether the MUMPS that PETSc links was built with 'scotch' or 'pt-scotch': MUMPS
+    defines its wrapper mumps_scotch_ (mumps_dgraphinit_) only then; dlsym looks it up
+    among petsc4py's module and the libraries it depends on (libpetsc, MUMPS's)."""
+    import ctypes
+    from petsc4py import PETSc
+    symbol = {"scotch": "mumps_scotch_", "pt-scotch": "mumps_dgraphinit_"}[ordering]
+    return hasattr(ctypes.CDLL(PETSc.__file__), symbol)
+
+
+def mumps_ordering_options(ranks):
+    """MUMPS's fill-reducing ordering, {ICNTL index: value}: nested dissection where the
+    build has it, PT-Scotch's in parallel on several ranks (ICNTL(28) = 2, ICNTL(29) = 1),
+    else Scotch's (ICNTL(7) = 3); without Scotch {} (MUMPS's automatic choice: with
+    Debian's libmumps-dev PORD above 10,000 unknowns (symmetric), AMF or QAMD below)."""
+    if ranks > 1 and mumps_has("pt-scotch"):
+        return {28: 2, 29: 1}
+    return {7: 3} if mumps_has("scotch") else {}
+
+
+def factor_stats(F):
+    """MUMPS's factor F: the ordering its analysis used (INFOG(32) sequential or parallel,
+    INFOG(7) which), the factor's entries summed over the ranks as the analysis estimated
+    them (INFOG(20)) and as factored (INFOG(29); a negative one is minus the millions, for
+    counts beyond 32-bit integers), and the factorization's floating-point operations
+    (RINFOG(3), all ranks)."""
+    orderings = PARALLEL_ORDERINGS if F.getMumpsInfog(32) == 2 else SEQUENTIAL_ORDERINGS
+    entries = [F.getMumpsInfog(i) for i in (20, 29)]
+    entries = [n if n >= 0 else -n * 10 ** 6 for n in entries]
+    return dict(mumps_ordering=orderings.get(F.getMumpsInfog(7), str(F.getMumpsInfog(7))),
+                factor_entries_estimated=entries[0], factor_entries=entries[1],
+                factor_flops=F.getMumpsRinfog(3))
 
 
 def reason_name(reason):

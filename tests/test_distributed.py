@@ -10,7 +10,8 @@ pictures computed from the ranks' pieces equal the whole problem's (also along t
 paths of compression, indentation and ironing, whose steps and iterations are the serial
 ones, and friction's solve hook; ironing's with a cut step on 2 ranks); alpha0's order statistics are exact without gathering;
 PETSc holds no more after each Newton step; the free vectors newton is handed have the
-length of the rank's held free dofs.
+length of the rank's held free dofs; 'direct' orders by PT-Scotch on several ranks and
+Scotch on one where MUMPS has them, and PETSc options choose another ordering.
 Skipped without petsc4py / mpirun (installed by `make petsc`)."""
 import json
 import os
@@ -116,6 +117,35 @@ def test_ranks_give_the_serial_energy_and_iterations(ranks, reference):
     agree(runs, reference, ranks)
     # the contact facets of body 1 pair with cells of body 2 on another rank
     assert (runs["elastic-contact"]["stats"]["straddling_constraint_elements"] > 0) == (ranks > 1)
+    for r in runs.values():
+        assert r["stats"].get("mumps_ordering") == nested_dissection(r), r["stats"]
+
+
+def nested_dissection(run):
+    """The ordering 'direct' asks of MUMPS (unknowns up to 10,000 here, for which MUMPS's
+    automatic choice would be AMF or QAMD): PT-Scotch's on several ranks, else Scotch's;
+    without them (a PETSc built against Debian's plain libmumps-dev) MUMPS's automatic one,
+    and no MUMPS, no ordering reported (PCREDUNDANT)."""
+    if "mumps_ordering" not in run["stats"]:
+        return None
+    if run["ranks"] > 1 and "pt-scotch" in run["orderings"]:
+        return "pt-scotch"
+    return "scotch" if "scotch" in run["orderings"] else run["stats"]["mumps_ordering"]
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+def test_petsc_options_choose_the_ordering(ranks, reference, monkeypatch):
+    """-mat_mumps_icntl_28 1 -mat_mumps_icntl_7 0 (a sequential analysis with AMD) override
+    the nested dissection 'direct' chooses, as MUMPS's factor reports; the same serial energy
+    and iterations, and the factor's entries (estimated and actual) reported."""
+    monkeypatch.setenv("PETSC_OPTIONS", "-mat_mumps_icntl_28 1 -mat_mumps_icntl_7 0")
+    runs = distributed(ranks, "direct", {"obstacle": 3})
+    agree(runs, reference, ranks)
+    stats = runs["obstacle"]["stats"]
+    if "mumps_ordering" not in stats:
+        pytest.skip("PETSc without MUMPS: 'direct' is PCREDUNDANT")
+    assert stats["mumps_ordering"] == "amd", stats
+    assert stats["factor_entries"] > 0 and stats["factor_entries_estimated"] > 0, stats
 
 
 @pytest.mark.parametrize("ranks", [1, 2, 3])
