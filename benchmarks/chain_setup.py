@@ -5,8 +5,10 @@ levels 0..L by nitsche.study.nested (what `nitsche run CASE --level L` does befo
 outputs) and reports the chain's CPU time (user + system, imports excluded), its wall
 time, the set-up of each level (`case.problem`), the prolongations between levels, the
 kernel loading (`assembly.compile_seconds`), the checks around each Newton solve
-(Problem.check_finite, newton.residual_scale, Problem.constraint_report: CPU time, all
-levels; kernels they load count in loading too), the finest level's Newton solve, the peak
+(newton.residual_scale, Problem.constraint_report, and Problem.check_finite in versions
+before session 28, whose Newton's method called it at each start: CPU time, all levels;
+kernels they load count in loading too; the first residual_scale of a level holds its
+quadratic terms' one assembly), the finest level's Newton solve, the peak
 resident memory (ru_maxrss), the minor page faults, the energy and the iterations.  CPU
 time is the measure that a shared machine disturbs least; medians are printed.
 
