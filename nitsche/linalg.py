@@ -68,6 +68,7 @@ class Cholmod:
     (nitsche.ordering): the factor is then that of P A P^T (its lower triangle, read from
     A's), and a solve x = P^T L^-T L^-1 P b."""
     name = "cholmod"
+    checks_by_factor = True  # is_positive_definite reuses the last factorization where it can
 
     def __init__(self, reuse_iterations=25, ordering="default", geometric=False):
         self.factor = self.factored = None
