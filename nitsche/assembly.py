@@ -903,17 +903,14 @@ class Assembler:
                 E += float(t.run("energy", x)[0].sum())
         return E
 
-    def evaluate(self, x, terms=None, hessian=True, replaced=None):
+    def evaluate(self, x, terms=None, hessian=True):
         """J(x), its gradient (ndofs,) and the CSR data (nnz,) of its Hessian (None
-        unless asked).  Quadratic terms are assembled once and then applied as matrices.
-        replaced: {term: other}, other (a term of the same elements and dofs, e.g.
-        Term.with_pointwise's) evaluated in term's place."""
+        unless asked).  Quadratic terms are assembled once and then applied as matrices."""
         E, grad = 0.0, np.zeros(self.ndofs)
         data = np.zeros(self.nnz) if hessian else None
         for t, scatter in zip(self.terms, self.scatter):
             if terms is not None and t not in terms:
                 continue
-            t = (replaced or {}).get(t, t)
             if t.is_quadratic:
                 E0, g0, K, positions = self._quadratic(t, scatter)
                 Kx = K @ x

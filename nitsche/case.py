@@ -219,10 +219,7 @@ class Case:
 
     def solve(self, problem, x0=None, **newton_options):
         """The case's load path (its path hook: nitsche.path, kept as problem.path, its last
-        attempted step returned; or its solve hook), or Newton's method from x0.  A path and
-        a hook start from their own states, not from x0: newton's coarse_ratio is not theirs."""
-        if self.has_path or hasattr(self.module, "solve"):
-            newton_options.pop("coarse_ratio", None)
+        attempted step returned; or its solve hook), or Newton's method from x0."""
         if self.has_path:
             from .path import path
             problem.path = path(problem, **self.module.path(problem, problem.setup.p), **newton_options)

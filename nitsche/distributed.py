@@ -178,20 +178,6 @@ class DistributedProblem:
         self.layout.set_values(data)
         return E, self.free_part(g), self.matrix
 
-    def newton_gradient(self, x):
-        """J_h(x) and its gradient on this rank's held free dofs (newton_system without the
-        Hessian)."""
-        E, g = self.assembler.gradient(x)
-        return E, self.free_part(g)
-
-    def predicted_system(self, x, ratio):
-        """Problem.predicted_system of the ranks' terms: newton_system with each predictable
-        inequality's active set that of a mesh coarser by `ratio`."""
-        self.collect()
-        E, g, data = self.assembler.evaluate(x, replaced=self.local.predicted_terms(ratio))
-        self.layout.set_values(data)
-        return E, self.free_part(g), self.matrix
-
     def update_pairing(self, x):
         """Problem.update_pairing of this rank's interface points (each rank pairs its own
         against the other body's current surface, whose dofs it holds: Layout); True on
@@ -330,9 +316,9 @@ class SummedAssembler:
     def __init__(self, dp):
         self.dp, self.terms = dp, dp.local.assembler.terms
 
-    def evaluate(self, x, terms=None, hessian=True, replaced=None):
+    def evaluate(self, x, terms=None, hessian=True):
         local, layout = self.dp.local, self.dp.layout
-        E, g, data = local.assembler.evaluate(x, terms, hessian, replaced)
+        E, g, data = local.assembler.evaluate(x, terms, hessian)
         E = E if np.all(np.isfinite(g)) else np.nan
         g[layout.dofs] = layout.assembled(g[layout.dofs])
         g[local.fixed] = self.dp.summed(g[local.fixed])

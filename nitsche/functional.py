@@ -296,33 +296,6 @@ class Constraint:
             return c, jnp.concatenate([g, lam])
         return pairs if self.residual else density
 
-    @property
-    def predictable(self):
-        """Whether the active set can be predicted from a coarser level (predicted): an
-        inequality of the energy with a multiplier (a penalty's active set g < 0 does not
-        depend on alpha)."""
-        return self.projection is INEQUALITY and self.multiplier is not None and not self.residual
-
-    def predicted(self, kappa):
-        """The density with the active set of kappa times larger alpha (that of a mesh coarser
-        by kappa^(1/k): where its solution, interpolated here, is in contact):
-
-            -1/2 alpha lambda^2 + 1/2 alpha s^2 chi,   s = lambda - g/alpha,
-            chi = 1 where lambda - g/(kappa alpha) > 0, else 0 (held fixed: no derivative).
-
-        Interpolated, a coarse solution's penetration g = alpha_c (lambda - lambda_N) is kappa
-        times too deep for this level's alpha: J_h's own active set [s > 0] there misses
-        the points of pressure lambda_N < (1 - 1/kappa) lambda; this one does not."""
-        parts = self._parts()
-
-        def density(args):
-            g, lam, alpha = parts(args)
-            s = lam - g / alpha
-            chi = jax.lax.stop_gradient(jnp.where(lam - g / (kappa * alpha) > 0, 1.0, 0.0))
-            return (-0.5 * alpha * jnp.sum(lam ** 2) + 0.5 * alpha * jnp.sum(chi * s ** 2)
-                    + nan_unless_finite(g, lam, alpha))
-        return density
-
     def values(self):
         """(g, lambda, alpha, P(lambda - g/alpha)) at a point: for reports, tractions and
         active sets (g, lambda, P vectors for a frictional constraint)."""

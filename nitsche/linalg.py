@@ -68,7 +68,6 @@ class Cholmod:
     (nitsche.ordering): the factor is then that of P A P^T (its lower triangle, read from
     A's), and a solve x = P^T L^-T L^-1 P b."""
     name = "cholmod"
-    checks_by_factor = True  # is_positive_definite reuses the last factorization where it can
 
     def __init__(self, reuse_iterations=25, ordering="default", geometric=False):
         self.factor = self.factored = None
@@ -144,6 +143,10 @@ class Cholmod:
                 return x
         self._factor(A)
         return self._solve(b)
+
+    def check_factors(self, A):
+        """Whether is_positive_definite(A) would factor A (no factorization it can reuse)."""
+        return self.factored is None or not semidefinite_difference(symmetric_csc(A), self.factored)
 
     def is_positive_definite(self, A):
         """Whether A is positive definite: True without a new factorization when A = F + D,

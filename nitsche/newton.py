@@ -167,47 +167,19 @@ def residual_scale(problem, x_ref, rtol):
     return ref if np.isfinite(ref) and ref > 0 else None
 
 
-def predicted_step(problem, lin, x, E, g, res, ratio, rtol, timings, system_at):
-    """The first Newton step of a nested level from the coarser level's solution x (mesh
-    coarser by `ratio`), on J_h with the coarser active set (Problem.predicted_system),
-    which J_h's own misses where the coarser alpha's penetration is too deep for this
-    level's (two membranes at 130k: 6 Newton steps against 4); then the Armijo search on
-    J_h: (step, x, system) as energy_search's, None where the step is not a descent
-    direction of J_h or the search fails (then Newton's own step is taken; the factorization
-    made here preconditions it)."""
-    t = time.perf_counter()
-    _, gp, Ap = problem.predicted_system(x, ratio)
-    timings["assembly"] += time.perf_counter() - t
-    t = time.perf_counter()
-    try:
-        dx = lin.solve(Ap, -gp, rtol=rtol)
-    except (IndefiniteHessian, NotSolved):
-        return None
-    finally:
-        timings["solve"] += time.perf_counter() - t
-    gp = Ap = None
-    slope = dot(problem, g, dx)
-    if not slope < 0:
-        return None
-    t, assembled = time.perf_counter(), timings["assembly"]
-    found = energy_search(problem, x, dx, E, res, slope, system_at)
-    timings["line_search"] += time.perf_counter() - t - (timings["assembly"] - assembled)
-    return found
-
-
-def factor_last(problem, lin, minimum_check, residuals, rtol):
-    """Whether to solve this step with a new factorization (rtol=0) instead of CG: when it is
-    likely the last one and the minimum check then costs nothing (the solver's
-    checks_by_factor: a matrix that differs from the one last factored by a positive
-    semidefinite one, here that of the same active set, is positive definite without a
-    factorization of its own).  Likely the last: the next relative residual, extrapolated
-    quadratically from the last two (r_k^3 / r_(k-1)^2), is below rtol.  Two membranes at
-    130k: the check's factorization (0.42-0.50 s) and the last CG solve (9 iterations) for
-    one factorization."""
-    if not (minimum_check and problem.symmetric and getattr(lin, "checks_by_factor", False)
+def factor_last(problem, lin, A, minimum_check, residuals, rtol):
+    """Whether to solve this step with a new factorization of A (rtol=0) instead of CG: when
+    the step is likely the last one and the minimum check would factor the matrix there
+    anyway (the solver's check_factors(A): A differs from the matrix factored last by more
+    than a positive semidefinite matrix: points left the active set since); the check then
+    reuses this factorization instead of the last CG solve.  Likely the last: the next
+    relative residual, extrapolated quadratically from the last two (r_k^3 / r_(k-1)^2),
+    is below rtol."""
+    if not (minimum_check and problem.symmetric and hasattr(lin, "check_factors")
             and len(residuals) > 1 and residuals[-2] > 0):
         return False
-    return residuals[-1] * min(1.0, residuals[-1] / residuals[-2]) ** 2 <= rtol
+    last = residuals[-1] * min(1.0, residuals[-1] / residuals[-2]) ** 2 <= rtol
+    return last and lin.check_factors(A)
 
 
 def forcing(residual, rtol):
@@ -279,7 +251,7 @@ class Result:
 
 
 def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None, lift=True,
-           minimum_check=True, reduction=None, coarse_ratio=None):
+           minimum_check=True, reduction=None):
     """Minimize J_h from x0 (fixed dofs are set to their values; lift: where x0's differ
     from the prescribed ones, the increment is carried into the interior first, see
     Problem.lift, unless that start is not finite); for a problem with
@@ -297,9 +269,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     is_positive_definite: CHOLMOD a Cholesky factor of that matrix, SuperLU the pivots
     of its symmetric LU, AMG an LOBPCG estimate); minimum_check=False skips that check (a
     coarse level of a nested chain, only a starting guess for the next level, whose own
-    check decides).  coarse_ratio given, x0 interpolates the solution of a mesh coarser by
-    that factor (a nested chain): the first step is predicted_step's where it descends.
-    Never returns silently unconverged:
+    check decides).  Never returns silently unconverged:
     see Result.converged; Result.feasible says whether a constraint looks infeasible.
     """
     check_options(rtol, maxiter, reduction)
@@ -327,20 +297,13 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
         timings["assembly"] += time.perf_counter() - t
         return system
     system = None  # Newton's system at x where the line search assembled it
-    predict = (coarse_ratio is not None and x0 is not None and problem.symmetric
-               and bool(getattr(problem, "predicted_terms", lambda ratio: None)(coarse_ratio)))
     for it in range(maxiter + 1):
         t = time.perf_counter()
         if sliding and problem.update_pairing(x):  # a new matrix structure
             lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
         timings["assembly"] += time.perf_counter() - t
         A = M = None  # the last step's matrices are not held through this assembly
-        if it == 0 and predict:  # the Hessian only if the predicted step is not taken
-            t = time.perf_counter()
-            E, g = problem.newton_gradient(x)
-            timings["assembly"] += time.perf_counter() - t
-        else:
-            E, g, A = system or system_at(x)
+        E, g, A = system or system_at(x)
         system = None
         if it == 0 and not (np.isfinite(E) and np.all(np.isfinite(g))):
             raise ValueError(f"J_h or its gradient is not finite at the initial guess (J_h = {E}): "
@@ -369,17 +332,10 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
         if it == maxiter:
             reason = f"reached the iteration limit {maxiter} with relative residual {res / ref:.1e}"
             break
-        if it == 0 and predict:
-            found = predicted_step(problem, lin, x, E, g, res, coarse_ratio, forcing(res / ref, tol),
-                                   timings, system_at)
-            if found is not None:
-                _, x, system = found
-                continue
-            A = system_at(x)[2]  # not a descent step of J_h: Newton's own
         t = time.perf_counter()
         convexified = False
         try:
-            dx, M = lin.solve(A, -g, rtol=0.0 if factor_last(problem, lin, minimum_check, residuals, tol)
+            dx, M = lin.solve(A, -g, rtol=0.0 if factor_last(problem, lin, A, minimum_check, residuals, tol)
                               else forcing(res / ref, tol)), A
             convexified = problem.symmetric and not dot(problem, g, dx) < 0
         except IndefiniteHessian as e:

@@ -71,7 +71,6 @@ class Problem:
                                  for c in self.constraints]
         # J_h has a potential (Cholesky, energy line search) unless a term is a residual
         self.symmetric = not any(t.residual for t in self.energy_terms + self.constraint_terms)
-        self._predicted = {}  # predicted_terms of one ratio (made again when alpha0 changes)
         self._resolve_alpha0(dict(alpha0_limits or {}))
         self.value_terms = [t.with_pointwise(c.values())
                             for c, t in zip(self.constraints, self.constraint_terms)]
@@ -289,7 +288,6 @@ class Problem:
         """alpha0 per element of constraint i, in its term and in its value term."""
         self.alpha0[self.constraints[i].name] = alpha0
         self.constraint_terms[i].alpha0 = self.value_terms[i].alpha0 = alpha0
-        self._predicted = {}
 
     def state(self):
         """The data that changes along a load path: parameter values, prescribed values and
@@ -381,28 +379,6 @@ class Problem:
         """J_h(x), its gradient on the free dofs and the free-free block of the Hessian (for a
         problem with residual terms: the energy terms' J, the residual and its Jacobian)."""
         E, g, data = self.assembler.evaluate(x)
-        return E, g[self.free], self._free_matrix(data)
-
-    def newton_gradient(self, x):
-        """J_h(x) and its gradient on the free dofs (newton_system without the Hessian)."""
-        E, g = self.assembler.gradient(x)
-        return E, g[self.free]
-
-    def predicted_terms(self, ratio):
-        """{constraint term: its term with the active set predicted from a mesh coarser by
-        `ratio` (Constraint.predicted, kappa = ratio^k)} for the constraints that have one."""
-        key = float(ratio)
-        if key not in self._predicted:
-            self._predicted = {key: {t: t.with_pointwise(c.predicted(key ** c.scaling.h_power))
-                                     for c, t in zip(self.constraints, self.constraint_terms)
-                                     if c.predictable}}
-        return self._predicted[key]
-
-    def predicted_system(self, x, ratio):
-        """newton_system of J_h with each predictable inequality's active set that of a mesh
-        coarser by `ratio` (predicted_terms): the first step of a nested level from the
-        coarser level's solution x."""
-        E, g, data = self.assembler.evaluate(x, replaced=self.predicted_terms(ratio))
         return E, g[self.free], self._free_matrix(data)
 
     def moved(self, x0):

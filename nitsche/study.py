@@ -43,8 +43,7 @@ COARSE_REDUCTION = 1e-2  # or their first residual's reduction by this factor, w
 FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
 
 
-def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=None, predicted_start=True,
-           **newton_options):
+def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=None, **newton_options):
     """Nested iteration for any problem: for each k in `levels`, minimize J_h of
     make_problem(k) from the previous level's solution prolongated to it (I u_{k-1}), by
     solve(problem, x0, **newton_options) (default Problem.minimize; a case's load path).
@@ -60,9 +59,7 @@ def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=
     error of I u_{k-1}, level k + 1 from that of I u_k, measured the same (two membranes'
     P1 fields: 1.1, 1.1) or 4x smaller (the obstacle: 8.8e-4, 2.2e-4); COARSE_REDUCTION
     leaves on level k 25-100x less than level k + 1 starts from; the first level starts
-    from x0 or zero, not from an interpolation error).  predicted_start: the first Newton step
-    of a level after the first takes the coarser level's active set (newton's coarse_ratio,
-    the ratio of the meshes' largest cell diameters)."""
+    from x0 or zero, not from an interpolation error)."""
     newton_options.setdefault("lift", False)
     prev, solve, levels = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o)), list(levels)
     check = newton_options.pop("minimum_check", True)
@@ -74,15 +71,13 @@ def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=
         last = k == levels[-1]
         reduced = coarse_reduction and x0 is not None and not last
         coarse = dict(reduction=coarse_reduction) if reduced else {}
-        if x0 is not None and predicted_start:
-            coarse["coarse_ratio"] = size / mesh_size(problem)
         result = solve(problem, x0, minimum_check=check and last,
                        rtol=rtol if last or coarse_rtol is None else max(rtol, coarse_rtol),
                        **coarse, **newton_options)
         yield k, problem, result
         if not result.converged:
             return
-        prev, size = (problem, result), mesh_size(problem) if predicted_start else None
+        prev = (problem, result)
 
 
 def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=False,
