@@ -144,10 +144,6 @@ class Cholmod:
         self._factor(A)
         return self._solve(b)
 
-    def check_factors(self, A):
-        """Whether is_positive_definite(A) would factor A (no factorization it can reuse)."""
-        return self.factored is None or not semidefinite_difference(symmetric_csc(A), self.factored)
-
     def is_positive_definite(self, A):
         """Whether A is positive definite: True without a new factorization when A = F + D,
         F the factored matrix and D positive semidefinite (then A >= F > 0; see

@@ -167,21 +167,6 @@ def residual_scale(problem, x_ref, rtol):
     return ref if np.isfinite(ref) and ref > 0 else None
 
 
-def factor_last(problem, lin, A, minimum_check, residuals, rtol):
-    """Whether to solve this step with a new factorization of A (rtol=0) instead of CG: when
-    the step is likely the last one and the minimum check would factor the matrix there
-    anyway (the solver's check_factors(A): A differs from the matrix factored last by more
-    than a positive semidefinite matrix: points left the active set since); the check then
-    reuses this factorization instead of the last CG solve.  Likely the last: the next
-    relative residual, extrapolated quadratically from the last two (r_k^3 / r_(k-1)^2),
-    is below rtol."""
-    if not (minimum_check and problem.symmetric and hasattr(lin, "check_factors")
-            and len(residuals) > 1 and residuals[-2] > 0):
-        return False
-    last = residuals[-1] * min(1.0, residuals[-1] / residuals[-2]) ** 2 <= rtol
-    return last and lin.check_factors(A)
-
-
 def forcing(residual, rtol):
     """Relative accuracy of the linear solve at relative residual r (inexact Newton):
     eta = min(1e-2, max(r, rtol / (10 r))), so that |grad| falls like r^2 and the last
@@ -335,8 +320,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
         t = time.perf_counter()
         convexified = False
         try:
-            dx, M = lin.solve(A, -g, rtol=0.0 if factor_last(problem, lin, A, minimum_check, residuals, tol)
-                              else forcing(res / ref, tol)), A
+            dx, M = lin.solve(A, -g, rtol=forcing(res / ref, tol)), A
             convexified = problem.symmetric and not dot(problem, g, dx) < 0
         except IndefiniteHessian as e:
             if not problem.symmetric:
