@@ -141,20 +141,51 @@ def _stored(key, compute):
     return value
 
 
-def _compile(jitted, args, name):
-    """The compiled program of jitted for arguments of the shapes args: from its lowered
-    program stored under name (kernel_store; no tracing), else traced, stored and compiled
-    (a program that cannot be exported is compiled directly)."""
-    exported = kernel_store.load(name) if name else None
-    if exported is None:
-        if name is None:
-            return jitted.lower(*args).compile()
-        try:
-            exported = jax.export.export(jitted)(*args)
-        except Exception:  # noqa: BLE001 -- not exportable (e.g. a custom call): not stored
-            return jitted.lower(*args).compile()
-        kernel_store.save(name, exported)
-    return jax.jit(exported.call).lower(*args).compile()
+def _compile(fn, args, name):
+    """The compiled program of fn (to jit) for arguments of the shapes args: loaded where an
+    earlier process stored it under name (kernel_store: no tracing, lowering or
+    compilation; Loaded), else traced, compiled (as kernel_store.fresh's program) and
+    stored; an executable with custom calls or that cannot be serialized is stored as its
+    lowered program (jax.export), which later processes compile (a program that cannot be
+    exported either is compiled in each process)."""
+    if name is None or kernel_store.folder() is None:
+        return jax.jit(fn).lower(*args).compile()
+
+    def compiled():
+        lowered = jax.jit(kernel_store.fresh(fn)).lower(*args)
+        program = lowered.compile()
+        # a custom call (LAPACK's, a host callback) is code of this process that the
+        # executable points into: not stored as an executable (loaded elsewhere, it crashes)
+        if "custom_call" in lowered.as_text() or not kernel_store.save(name, program):
+            try:
+                kernel_store.save(name, jax.export.export(jax.jit(fn))(*args))
+            except Exception:  # noqa: BLE001 -- not exportable (e.g. a custom call): not stored
+                pass
+        return program
+    stored = kernel_store.load(name)
+    if isinstance(stored, jax.export.Exported):
+        return jax.jit(stored.call).lower(*args).compile()
+    return Loaded(stored, compiled) if stored is not None else compiled()
+
+
+class Loaded:
+    """A stored executable that is compiled again (and stored anew) where its first call
+    fails: an entry written without its code (an executable JAX fetched from its persistent
+    cache, e.g. by an older version) would otherwise fail in every process."""
+
+    def __init__(self, executable, compile_again):
+        self.executable, self.compile_again = executable, compile_again
+
+    def __call__(self, *args):
+        if self.compile_again is None:
+            return self.executable(*args)
+        try:  # (the error comes with the outputs: the first call is waited for)
+            out = jax.block_until_ready(self.executable(*args))
+        except jax.errors.JaxRuntimeError:
+            self.executable = self.compile_again()
+            out = self.executable(*args)
+        self.compile_again = None
+        return out
 
 
 def global_names(code):
@@ -624,7 +655,7 @@ class Term:
             point = (self.nq, self.dim)
             args += [jax.ShapeDtypeStruct((chunk,) + shape, jnp.float64)  # W, x, n, h, alpha0, parameters
                      for shape in ((self.nq,), point, point, (), (), (self.parameter_index.size,))]
-            return _compile(jax.jit(fn), args, kernel_store.digest(key))
+            return _compile(fn, args, kernel_store.digest(key))
         self._kernels[kind, chunk] = _cached(key, compiled)
         return self._kernels[kind, chunk]
 

@@ -1,12 +1,15 @@
-"""Kernels kept on disk (nitsche.kernel_store): a new process loads a kernel's lowered
-program instead of tracing it, gets the same numbers, and never loads a program stored for
-a different density, a damaged entry or one keyed by an object's identity."""
+"""Kernels kept on disk (nitsche.kernel_store): a new process loads a kernel's compiled
+executable instead of tracing, lowering and compiling it, gets the same numbers, and never
+loads a program stored for a different density, a damaged entry or one keyed by an object's
+identity."""
 import json
 import os
+import pickle
 import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from nitsche import assembly, kernel_store
 
@@ -63,6 +66,56 @@ def test_a_second_process_loads_the_kernels_traces_none_and_gets_the_same_number
     assert other["energy"] != first["energy"]
 
 
+# A child process: compile sin(x) @ y (with JAX's persistent cache; or as kernel_store.fresh's
+# program and store it), or load the stored one and print its value.
+EXECUTABLE = r"""
+import sys
+import jax, jax.numpy as jnp
+from nitsche import kernel_store
+args = (jnp.full((8, 8), 0.5), jnp.ones((8, 8)))
+jitted = jax.jit(lambda x, y: jnp.sin(x) @ y)
+if sys.argv[1] == "compile":
+    jitted.lower(*args).compile()
+elif sys.argv[1] == "store":
+    print(kernel_store.save("sin", jax.jit(kernel_store.fresh(lambda x, y: jnp.sin(x) @ y)).lower(*args).compile()))
+elif sys.argv[1] == "store-cached":  # fetched from JAX's cache: serialized without its code
+    print(kernel_store.save("sin", jitted.lower(*args).compile()))
+elif sys.argv[1] == "kernel":  # as the assembler gets its kernels
+    from nitsche import assembly
+    print(float(assembly._compile(lambda x, y: jnp.sin(x) @ y, args, "sin")(*args)[0, 0]))
+else:
+    print(float(kernel_store.load("sin")(*args)[0, 0]))
+"""
+
+
+def test_a_stored_executable_runs_in_another_process_though_jax_cached_its_program(tmp_path):
+    """An executable that JAX fetched from its persistent cache serializes without its code
+    on the CPU (calling it in another process fails); fresh's program's does not, and
+    the assembler's kernel (assembly.Loaded) replaces an entry without code."""
+    env = dict(os.environ, NITSCHE_JAX_CACHE=str(tmp_path))
+
+    def run(mode):
+        """(the child's exit status, its output)."""
+        out = subprocess.run([sys.executable, "-c", EXECUTABLE, mode], env=env, capture_output=True,
+                             text=True)
+        return out.returncode, out.stdout.strip() + out.stderr
+    assert run("compile")[0] == 0  # the program now in JAX's cache
+    assert run("store") == (0, "True")
+    assert run("load") == (0, repr(8 * float(np.sin(0.5))))
+    # an entry without its code: the assembler's kernel compiles it again and stores it anew
+    assert run("store-cached") == (0, "True")
+    status, said = run("load")
+    assert status != 0 and "not found" in said
+    assert run("kernel") == (0, repr(8 * float(np.sin(0.5))))
+    assert run("load") == (0, repr(8 * float(np.sin(0.5))))
+
+
+def test_the_kernels_are_stored_as_executables(tmp_path):
+    child(tmp_path)
+    kinds = [pickle.load(open(tmp_path / "kernels" / f, "rb"))[0] for f in os.listdir(tmp_path / "kernels")]
+    assert kinds.count("executable") >= 3 and set(kinds) <= {"executable", "value"}, kinds
+
+
 def test_with_the_cache_off_nothing_is_stored(tmp_path):
     env = dict(os.environ, NITSCHE_JAX_CACHE="off", HOME=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", CHILD, "1.0"], env=env, capture_output=True, text=True,
@@ -107,3 +160,20 @@ def test_digests_are_the_same_in_another_process():
 def test_distinct_values_have_distinct_digests():
     values = [1, 1.0, "1", (1,), [1], None, b"1", True, 1 + 0j]
     assert len({kernel_store.digest((v,)) for v in values}) == len(values)
+
+
+def test_a_program_with_a_custom_call_is_stored_as_its_lowered_program(tmp_path, monkeypatch):
+    """LAPACK's LU (jnp.linalg.solve) is a custom call into this process's code: its kernel
+    is stored as the lowered program (compiled in each process), a plain one as an executable."""
+    import jax.numpy as jnp
+    monkeypatch.setattr(kernel_store, "folder", lambda: str(tmp_path))
+    a = jnp.array([[2.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 4.0]])
+    b = jnp.array([3.0, 5.0, 5.0])
+
+    def solved(a, b):
+        return jnp.linalg.solve(a, b)
+    for _ in range(2):  # compiled and stored, then loaded
+        assert np.allclose(assembly._compile(solved, (a, b), "solve")(a, b), 1.0, rtol=1e-14)
+        assert float(assembly._compile(lambda a, b: a.sum() + b.sum(), (a, b), "sum")(a, b)) == 26.0
+    kinds = {name: pickle.load(open(tmp_path / f"{name}.pkl", "rb"))[0] for name in ("solve", "sum")}
+    assert kinds == {"solve": "exported", "sum": "executable"}
