@@ -11,11 +11,12 @@ own source, the Python and JAX versions, x64, the device and the host's processo
 process deserializes and loads it (15-35 ms for a kernel of the 130k chain, against 40-50
 ms to lower a stored program and fetch its compilation from JAX's cache).  It is compiled
 under a name of its own (fresh), so never fetched from JAX's persistent cache: an
-executable that JAX loaded from its cache serializes without its code on the CPU.  Where an executable cannot be serialized, its lowered program (jax.export: StableHLO)
-is stored instead and compiled in each process.  A key that names an object by identity
-(valid only in its process) is not stored.  Other values (the analyses of a density) are
-pickled.  The store lives under JAX's cache directory (NITSCHE_JAX_CACHE; "off": nothing
-stored).
+executable that JAX loaded from its cache serializes without its code on the CPU.  A
+program with custom calls (code of the process that compiled it), or whose executable
+cannot be serialized, is stored as its lowered program (jax.export: StableHLO) and
+compiled in each process.  A key that names an object by identity (valid only in its
+process) is not stored.  Other values (the analyses of a density) are pickled.  The store
+lives under JAX's cache directory (NITSCHE_JAX_CACHE; "off": nothing stored).
 """
 import hashlib
 import os
@@ -90,9 +91,8 @@ def fresh(fn):
 def save(name, value):
     """Store value under name, atomically (another process reads the whole entry or none): a
     compiled executable (of a program made by fresh), a jax.export.Exported or a picklable
-    value.
-    False where it is not stored (no store, an executable that cannot be serialized, a
-    store that cannot be written)."""
+    value.  False where it is not stored (no store, an executable that cannot be
+    serialized, a store that cannot be written)."""
     path = _path(name)
     if path is None:
         return False
