@@ -92,9 +92,10 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     failure on the first level returns its unconverged result (an error there is raised).
     The levels below `level` are solved to COARSE_RTOL only, those after the first also
     only to COARSE_REDUCTION of their first residual (nested's coarse_rtol and
-    coarse_reduction), unless the options' rtol is looser.  A converged coarser level keeps its result without its problem, which
-    is built again only if a finer level fails, so that its memory is not held through the
-    finer solves; it is then solved on to the options' rtol and checked."""
+    coarse_reduction), unless the options' rtol is looser.  A converged coarser level keeps
+    its result without its problem, which is built again only if a finer level fails, so
+    that its memory is not held through the finer solves; it is then solved on to the
+    options' rtol and checked."""
     prev, its = None, []
     engine = engine or (lambda build: build())
     build = lambda k: engine(lambda: case.problem(k, degree, p))  # noqa: E731

@@ -9,7 +9,6 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
 from nitsche import assembly, kernel_store
 
@@ -73,16 +72,21 @@ import sys
 import jax, jax.numpy as jnp
 from nitsche import kernel_store
 args = (jnp.full((8, 8), 0.5), jnp.ones((8, 8)))
-jitted = jax.jit(lambda x, y: jnp.sin(x) @ y)
+
+
+def f(x, y):
+    return jnp.sin(x) @ y
+
+
 if sys.argv[1] == "compile":
-    jitted.lower(*args).compile()
+    jax.jit(f).lower(*args).compile()
 elif sys.argv[1] == "store":
-    print(kernel_store.save("sin", jax.jit(kernel_store.fresh(lambda x, y: jnp.sin(x) @ y)).lower(*args).compile()))
+    print(kernel_store.save("sin", jax.jit(kernel_store.fresh(f)).lower(*args).compile()))
 elif sys.argv[1] == "store-cached":  # fetched from JAX's cache: serialized without its code
-    print(kernel_store.save("sin", jitted.lower(*args).compile()))
+    print(kernel_store.save("sin", jax.jit(f).lower(*args).compile()))
 elif sys.argv[1] == "kernel":  # as the assembler gets its kernels
     from nitsche import assembly
-    print(float(assembly._compile(lambda x, y: jnp.sin(x) @ y, args, "sin")(*args)[0, 0]))
+    print(float(assembly._compile(f, args, "sin")(*args)[0, 0]))
 else:
     print(float(kernel_store.load("sin")(*args)[0, 0]))
 """
