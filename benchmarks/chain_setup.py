@@ -10,7 +10,10 @@ before session 28, whose Newton's method called it at each start: CPU time, all 
 kernels they load count in loading too; the first residual_scale of a level holds its
 quadratic terms' one assembly), the finest level's Newton solve, the peak
 resident memory (ru_maxrss), the minor page faults, the energy and the iterations.  CPU
-time is the measure that a shared machine disturbs least; medians are printed.
+time is the measure that a shared machine disturbs least; medians are printed.  The chain
+as `nitsche run` runs it: its last level built ahead in a background thread where
+study.nested has that option (session 30); the chain's CPU is the process's (all
+threads), the phases' each the CPU of the thread that ran them.
 
     python benchmarks/chain_setup.py --cases obstacle two-membrane --level 6 --repeat 3 \\
         --before /tmp/before   # a checkout of an earlier version, side by side
@@ -26,7 +29,7 @@ import sys
 from run_ratio import HERE, write_results
 
 CHILD = r"""
-import json, resource, sys, time
+import inspect, json, resource, sys, time
 import nitsche.assembly as assembly
 import nitsche.newton as newton
 import nitsche.study as study
@@ -40,36 +43,38 @@ setup, prolongation = [], [0.0]
 prolongate = study.prolongate
 
 def timed_prolongate(*a):
-    c = time.process_time()
+    c = time.thread_time()
     try:
         return prolongate(*a)
     finally:
-        prolongation[0] += time.process_time() - c
+        prolongation[0] += time.thread_time() - c
 study.prolongate = timed_prolongate
 checks = [0.0]
 
 def timed(fn):
     def call(*a, **k):
-        c = time.process_time()
+        c = time.thread_time()
         try:
             return fn(*a, **k)
         finally:
-            checks[0] += time.process_time() - c
+            checks[0] += time.thread_time() - c
     return call
 Problem.check_finite = timed(Problem.check_finite)
 Problem.constraint_report = timed(Problem.constraint_report)
 newton.residual_scale = timed(newton.residual_scale)
 
 def build(k):
-    c = time.process_time()
+    c = time.thread_time()
     problem = case.problem(k, case.degrees[0], p)
-    setup.append(time.process_time() - c)
+    setup.append(time.thread_time() - c)
     return problem
 
 t0, c0 = time.perf_counter(), time.process_time()
 its = []
 coarse = {option: getattr(study, name) for option, name in (("coarse_rtol", "COARSE_RTOL"),
               ("coarse_reduction", "COARSE_REDUCTION")) if hasattr(study, name)}  # as `nitsche run`
+if "ahead" in inspect.signature(study.nested).parameters:  # as `nitsche run` (session 30)
+    coarse["ahead"] = True
 for k, problem, result in study.nested(build, range(level + 1), case.solve, **coarse):
     its.append(result.iterations)
     finest = result.seconds

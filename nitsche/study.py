@@ -8,6 +8,7 @@ has one.
 """
 import dataclasses
 import sys
+import threading
 import time
 
 import numpy as np
@@ -43,7 +44,34 @@ COARSE_REDUCTION = 1e-2  # or their first residual's reduction by this factor, w
 FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
 
 
-def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=None, **newton_options):
+class Ahead:
+    """make() run in a background thread from now on (a daemon: it does not hold up the
+    process's exit); value() waits for it and returns what it returned or raises what it
+    raised."""
+
+    def __init__(self, make):
+        self._outcome = None
+        self._thread = threading.Thread(target=self._run, args=(make,), daemon=True,
+                                        name="nitsche-ahead")
+        self._thread.start()
+
+    def _run(self, make):
+        try:
+            self._outcome = (True, make())
+        except BaseException as e:  # noqa: BLE001 -- handed to value()'s caller
+            self._outcome = (False, e)
+
+    def value(self):
+        self._thread.join()
+        done, value = self._outcome
+        self._outcome = None  # (not held here once handed over)
+        if not done:
+            raise value
+        return value
+
+
+def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=None, ahead=False,
+           **newton_options):
     """Nested iteration for any problem: for each k in `levels`, minimize J_h of
     make_problem(k) from the previous level's solution prolongated to it (I u_{k-1}), by
     solve(problem, x0, **newton_options) (default Problem.minimize; a case's load path).
@@ -59,13 +87,17 @@ def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=
     error of I u_{k-1}, level k + 1 from that of I u_k, measured the same (two membranes'
     P1 fields: 1.1, 1.1) or 4x smaller (the obstacle: 8.8e-4, 2.2e-4); COARSE_REDUCTION
     leaves on level k 25-100x less than level k + 1 starts from; the first level starts
-    from x0 or zero, not from an interpolation error)."""
+    from x0 or zero, not from an interpolation error).  ahead: the last level's problem is
+    built in a background thread (Ahead) from the start, beside the coarser levels' set-up
+    and solves (make_problem must then be safe to call from two threads at once: no MPI
+    collectives, as in a distributed set-up, and no shared mutable state)."""
     newton_options.setdefault("lift", False)
     prev, solve, levels = None, solve or (lambda problem, x0, **o: problem.minimize(x0, **o)), list(levels)
     check = newton_options.pop("minimum_check", True)
     rtol = newton_options.pop("rtol", RTOL)
+    finest = Ahead(lambda: make_problem(levels[-1])) if ahead and len(levels) > 1 else None
     for k in levels:
-        problem = make_problem(k)
+        problem = finest.value() if finest and k == levels[-1] else make_problem(k)
         x0 = prolongate(prev[0], prev[1].x, problem) if prev else None
         prev = result = None  # not held here through this solve (solve_nested drops its own)
         last = k == levels[-1]
@@ -95,8 +127,9 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     coarse_reduction), unless the options' rtol is looser.  A converged coarser level keeps
     its result without its problem, which is built again only if a finer level fails, so
     that its memory is not held through the finer solves; it is then solved on to the
-    options' rtol and checked."""
-    prev, its = None, []
+    options' rtol and checked.  Serial (no engine), the finest level's problem is built in
+    a background thread beside the coarser levels (nested's ahead)."""
+    prev, its, serial = None, [], engine is None
     engine = engine or (lambda build: build())
     build = lambda k: engine(lambda: case.problem(k, degree, p))  # noqa: E731
 
@@ -109,7 +142,7 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
         return problem, case.solve(problem, result.x, **(newton_options or {}))
     try:
         for k, problem, result in nested(build, range(first, level + 1), case.solve, COARSE_RTOL,
-                                         COARSE_REDUCTION, **(newton_options or {})):
+                                         COARSE_REDUCTION, ahead=serial, **(newton_options or {})):
             its.append(result.iterations)
             if progress:
                 print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} "

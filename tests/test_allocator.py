@@ -9,24 +9,32 @@ TOUCH = """
 import ctypes, resource, sys
 import nitsche
 from nitsche.allocator import keep_freed_memory
-if sys.argv[1:] == ["keep"]:
+if sys.argv[1:2] == ["keep"]:
     keep_freed_memory()
 libc = ctypes.CDLL(None)
 libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
 n = 64 << 20
-a = libc.malloc(n); ctypes.memset(a, 1, n); libc.free(a)       # a large block, freed
+
+def freed():
+    a = libc.malloc(n); ctypes.memset(a, 1, n); libc.free(a)    # a large block, freed
+if sys.argv[2:] == ["thread"]:  # ... by another thread (the finest level built ahead)
+    import threading
+    t = threading.Thread(target=freed); t.start(); t.join()
+else:
+    freed()
 before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 b = libc.malloc(n); ctypes.memset(b, 1, n)                      # the next one, touched
 print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 """
 
 
-def faults(keep=True, **env):
-    """Minor page faults of touching a 64 MB block after freeing one, in a fresh process
-    that imports nitsche and (keep) calls keep_freed_memory as the `nitsche` command does."""
+def faults(keep=True, thread=False, **env):
+    """Minor page faults of touching a 64 MB block after freeing one (thread: freed by
+    another thread), in a fresh process that imports nitsche and (keep) calls
+    keep_freed_memory as the `nitsche` command does."""
     environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
-    out = subprocess.run([sys.executable, "-c", TOUCH] + (["keep"] if keep else []),
+    out = subprocess.run([sys.executable, "-c", TOUCH, "keep" if keep else "-"] + (["thread"] if thread else []),
                          env=dict(environ, **env), capture_output=True,
                          text=True, check=True)
     return int(out.stdout.split()[-1])
@@ -45,6 +53,7 @@ def test_a_freed_large_block_is_reused_without_page_faults():
     assert system > 0.5 * pages, system       # unmapped on free: every page faulted anew
     assert faults(MALLOC_MMAP_MAX_="65536") > 0.5 * pages  # a user's tunable is left alone
     assert faults(keep=False) > 0.5 * pages   # importing the library leaves malloc alone
+    assert faults(thread=True) < 0.05 * pages  # one arena: another thread's freed block too
 
 
 def test_opting_out_leaves_malloc_alone(monkeypatch):

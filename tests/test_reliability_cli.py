@@ -330,6 +330,38 @@ def test_the_coarser_levels_stop_at_a_fraction_of_their_first_residual(name):
     assert np.isclose(reduced[-1].energy, plain[-1].energy, rtol=1e-12, atol=0)
 
 
+def test_the_finest_level_is_built_ahead_on_another_thread():
+    """nested(ahead=True): the last level's problem is built on a background thread (the
+    coarser ones on the caller's), the chain is that of ahead=False bit for bit (J_h,
+    residuals, iterations), and an error building the last level reaches the caller at
+    that level, after the coarser levels."""
+    import threading
+    from nitsche.study import COARSE_REDUCTION, COARSE_RTOL, nested
+    case = get("two-membrane")
+    p = case.parameters()
+    built = {}
+
+    def make(k):
+        built[k] = threading.current_thread() is threading.main_thread()
+        return case.problem(k, 1, p)
+    chains = {a: [r for _, _, r in nested(make, range(4), case.solve, COARSE_RTOL, COARSE_REDUCTION, ahead=a)]
+              for a in (False, True)}
+    assert built == {0: True, 1: True, 2: True, 3: False}
+    plain, ahead = chains[False], chains[True]
+    assert [r.residuals for r in ahead] == [r.residuals for r in plain]
+    assert [r.energy for r in ahead] == [r.energy for r in plain] and ahead[-1].converged
+
+    def failing(k):
+        if k == 3:
+            raise MemoryError("level 3")
+        return case.problem(k, 1, p)
+    solved = []
+    with pytest.raises(MemoryError, match="level 3"):
+        for k, _, result in nested(failing, range(4), case.solve, ahead=True):
+            solved.append((k, result.converged))
+    assert solved == [(0, True), (1, True), (2, True)]
+
+
 def test_a_study_that_fails_keeps_the_levels_it_finished(tmp_path, monkeypatch, capsys):
     fail_at(monkeypatch, "dirichlet", 2, MemoryError)
     out = tmp_path / "s"
