@@ -44,7 +44,9 @@ def stress(u, E, nu):
 
 
 def build(level, degree, p):
-    """The problem at `level` uniform refinements: fields, energy, constraints."""
+    """The problem at `level` uniform refinements: fields, energy, constraints (`nitsche run`
+    builds its finest level on a background thread beside the coarser ones: build only from
+    its arguments, with no shared mutable state)."""
     mesh = MeshTri.init_tensor([0.0, 0.5, 1.0], [0.0, 0.25, 0.5]).refined(level + 1)
     element = ElementVector(ElementTriP1() if degree == 1 else ElementTriP2())
     u = ni.Field("u", mesh, element, fixed=lambda x: x[1] > 0.5 - 1e-12,
