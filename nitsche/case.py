@@ -174,6 +174,11 @@ class Case:
             n1[f.mesh.dim()] = n1.get(f.mesh.dim(), 0) + f.ndofs
         return {d: n * 2.0 ** (d * (level - 1)) for d, n in n1.items()}
 
+    def memory_need(self, level, degree, p):
+        """Estimated bytes of a solve at `level` (BYTES_PER_UNKNOWN per estimated unknown)."""
+        return sum(n * BYTES_PER_UNKNOWN[d] * (1 if degree == 1 else 2)
+                   for d, n in self.unknowns(level, degree, p).items())
+
     def check_level(self, level, degree, p, option="--level"):
         """Refuse a negative level, or one whose estimated memory exceeds this machine's
         (naming the largest level that fits)."""
@@ -183,8 +188,7 @@ class Case:
             return
 
         def need(k):
-            return sum(n * BYTES_PER_UNKNOWN[d] * (1 if degree == 1 else 2)
-                       for d, n in self.unknowns(k, degree, p).items())
+            return self.memory_need(k, degree, p)
         memory = machine_memory()
         if need(level) > memory:
             fits = max([k for k in range(level) if need(k) <= memory], default=0)

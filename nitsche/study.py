@@ -41,6 +41,7 @@ class StudyFailed(NotConverged):
 
 COARSE_RTOL = 1e-6  # the relative residual of the coarser levels of `nitsche run`'s chain (nested)
 COARSE_REDUCTION = 1e-2  # or their first residual's reduction by this factor, whichever comes first
+AHEAD_MEMORY = 0.5  # the finest level built ahead (solve_nested) while its estimated memory is below this share
 FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
 
 
@@ -128,8 +129,13 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
     its result without its problem, which is built again only if a finer level fails, so
     that its memory is not held through the finer solves; it is then solved on to the
     options' rtol and checked.  Serial (no engine), the finest level's problem is built in
-    a background thread beside the coarser levels (nested's ahead)."""
-    prev, its, serial = None, [], engine is None
+    a background thread beside the coarser levels (nested's ahead), unless its estimated
+    memory is above AHEAD_MEMORY of the machine's (then the two would hold more at once
+    than the finest solve alone)."""
+    from .case import machine_memory
+    ahead = engine is None and level > first and \
+        case.memory_need(level, degree, p) <= AHEAD_MEMORY * machine_memory()
+    prev, its = None, []
     engine = engine or (lambda build: build())
     build = lambda k: engine(lambda: case.problem(k, degree, p))  # noqa: E731
 
@@ -142,7 +148,7 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
         return problem, case.solve(problem, result.x, **(newton_options or {}))
     try:
         for k, problem, result in nested(build, range(first, level + 1), case.solve, COARSE_RTOL,
-                                         COARSE_REDUCTION, ahead=serial, **(newton_options or {})):
+                                         COARSE_REDUCTION, ahead=ahead, **(newton_options or {})):
             its.append(result.iterations)
             if progress:
                 print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} "

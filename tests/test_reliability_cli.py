@@ -362,6 +362,24 @@ def test_the_finest_level_is_built_ahead_on_another_thread():
     assert solved == [(0, True), (1, True), (2, True)]
 
 
+@pytest.mark.parametrize("share,ahead", [(0.5, 1), (0.0, 0)])
+def test_solve_nested_builds_ahead_only_what_fits_twice(monkeypatch, share, ahead):
+    """solve_nested builds its finest level ahead (study.Ahead) while the level's estimated
+    memory is at most AHEAD_MEMORY of the machine's, else in turn: the same result."""
+    import nitsche.study as study
+    made = []
+
+    class Counted(study.Ahead):
+        def __init__(self, make):
+            made.append(1)
+            super().__init__(make)
+    monkeypatch.setattr(study, "Ahead", Counted)
+    monkeypatch.setattr(study, "AHEAD_MEMORY", share)
+    case = get("obstacle")
+    problem, result, its, failure = study.solve_nested(case, 3, 1, case.parameters())
+    assert len(made) == ahead and failure is None and result.converged and len(its) == 4
+
+
 def test_a_study_that_fails_keeps_the_levels_it_finished(tmp_path, monkeypatch, capsys):
     fail_at(monkeypatch, "dirichlet", 2, MemoryError)
     out = tmp_path / "s"
