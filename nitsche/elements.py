@@ -74,9 +74,9 @@ def with_hessian(element):
     if isinstance(element, ElementVector) or not isinstance(element, ElementH1):
         return element
     cls = type(element)
-    if cls not in _CACHE:
-        _CACHE[cls] = type(cls.__name__, (cls,), {"gbasis": _gbasis_with_hessian,
-                                                  "provides_hessian": True})
+    if cls not in _CACHE:  # (setdefault: one class per element class, whichever thread makes it)
+        _CACHE.setdefault(cls, type(cls.__name__, (cls,), {"gbasis": _gbasis_with_hessian,
+                                                           "provides_hessian": True}))
     wrapped = _CACHE[cls].__new__(_CACHE[cls])
     wrapped.__dict__.update(element.__dict__)
     return wrapped
