@@ -17,6 +17,7 @@ from . import cases as registry, distributed
 from .allocator import keep_freed_memory
 from .case import ParameterError, parse_assignments
 from .output import Interrupted, OutputFolder, raise_interrupted, redeliver_ignored
+from .study import Ahead
 
 SOLVERS = ("auto", "cholmod", "superlu", "amg", "gamg", "direct")  # the last two: on MPI ranks
 USAGE, WRITE_FAILED = 2, 3
@@ -283,5 +284,18 @@ def follow(case, args, p, options):
         return WRITE_FAILED
 
 
+def entry():
+    """The `nitsche` command: main() and the process's exit with its status, at once where
+    a chain stopped before its finest level, whose problem a background thread still
+    builds (nitsche.study.Ahead, which the interpreter's exit would wait for): the outputs
+    are settled by then."""
+    code = main()
+    if Ahead.running():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code or 0)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

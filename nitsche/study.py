@@ -46,15 +46,20 @@ FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # 
 
 
 class Ahead:
-    """make() run in a background thread from now on (a daemon: it does not hold up the
-    process's exit); value() waits for it and returns what it returned or raises what it
-    raised."""
+    """make() run in a background thread from now on; value() waits for it and returns what
+    it returned or raises what it raised.  Not a daemon thread: the interpreter's exit waits
+    for it (a daemon thread still inside JAX's or NumPy's native code when the interpreter
+    finalizes is unwound there and aborts the process, SIGABRT instead of the exit status)."""
 
     def __init__(self, make):
         self._outcome = None
-        self._thread = threading.Thread(target=self._run, args=(make,), daemon=True,
-                                        name="nitsche-ahead")
+        self._thread = threading.Thread(target=self._run, args=(make,), name="nitsche-ahead")
         self._thread.start()
+
+    @staticmethod
+    def running():
+        """Whether an Ahead's thread is still at work (e.g. a chain stopped on a coarser level)."""
+        return any(t.name == "nitsche-ahead" and t.is_alive() for t in threading.enumerate())
 
     def _run(self, make):
         try:

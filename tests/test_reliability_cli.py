@@ -204,6 +204,40 @@ def test_sigint_in_a_subprocess_is_one_line(previous):
         assert snapshot(previous) == before
 
 
+SLOW_FINEST = """
+import time
+from nitsche.cases import obstacle
+PARAMETERS = obstacle.PARAMETERS
+
+
+def build(level, degree, p):
+    if level == 3:  # the finest level, built ahead on a background thread
+        time.sleep(120)
+    return obstacle.build(level, degree, p)
+"""
+
+
+@pytest.mark.parametrize("stop", ["failure", "sigterm"])
+def test_a_chain_stopped_before_its_finest_level_exits_at_once(tmp_path, stop):
+    """A chain that stops on a coarser level (Newton's iteration limit, or SIGTERM) while its
+    finest level is still being built in the background exits at once with its status: the
+    process does not wait for that build (nor abort at exit)."""
+    case = tmp_path / "slow_finest.py"
+    case.write_text(SLOW_FINEST)
+    command = os.path.join(os.path.dirname(sys.executable), "nitsche")  # the console script: cli.entry
+    argv = [command, "run", str(case), "--level", "3", "--out", str(tmp_path / "o")]
+    proc = subprocess.Popen(argv + (["--maxiter", "0"] if stop == "failure" else []),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t = time.perf_counter()
+    if stop == "sigterm":
+        assert proc.stderr.readline().startswith("[level 0/3]")
+        proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=100)
+    assert time.perf_counter() - t < 60, "waited for the background build"
+    assert proc.returncode == (1 if stop == "failure" else 128 + signal.SIGTERM), err
+    assert "Traceback" not in err and "terminate called" not in err
+
+
 def test_a_second_run_into_a_locked_folder_is_refused(previous, capsys):
     before = snapshot(previous)
     with OutputFolder(str(previous)):
