@@ -186,16 +186,13 @@ class Case:
             raise ParameterError(f"{option} must be >= 0 (0 is the coarsest mesh), got {level}")
         if level <= 1:
             return
-
-        def need(k):
-            return self.memory_need(k, degree, p)
-        memory = machine_memory()
-        if need(level) > memory:
-            fits = max([k for k in range(level) if need(k) <= memory], default=0)
+        memory, need = machine_memory(), self.memory_need(level, degree, p)
+        if need > memory:
+            fits = max([k for k in range(level) if self.memory_need(k, degree, p) <= memory], default=0)
             total = sum(self.unknowns(level, degree, p).values())
             raise ParameterError(
                 f"{option} {level}: about {total:.3g} unknowns would need about "
-                f"{need(level) / 2**30:.3g} GiB, this machine has {memory / 2**30:.3g} GiB; "
+                f"{need / 2**30:.3g} GiB, this machine has {memory / 2**30:.3g} GiB; "
                 f"the largest level that fits is {fits}")
 
     def problem(self, level, degree, p, alpha0_limits=None):

@@ -51,15 +51,17 @@ class Ahead:
     for it (a daemon thread still inside JAX's or NumPy's native code when the interpreter
     finalizes is unwound there and aborts the process, SIGABRT instead of the exit status)."""
 
+    NAME = "nitsche-ahead"  # its threads' name
+
     def __init__(self, make):
         self._outcome = None
-        self._thread = threading.Thread(target=self._run, args=(make,), name="nitsche-ahead")
+        self._thread = threading.Thread(target=self._run, args=(make,), name=self.NAME)
         self._thread.start()
 
     @staticmethod
     def running():
         """Whether an Ahead's thread is still at work (e.g. a chain stopped on a coarser level)."""
-        return any(t.name == "nitsche-ahead" and t.is_alive() for t in threading.enumerate())
+        return any(t.name == Ahead.NAME and t.is_alive() for t in threading.enumerate())
 
     def _run(self, make):
         try:
