@@ -110,11 +110,12 @@ class DistributedProblem:
         self.layout.owner = None  # (a rank per dof) read by the set-up only
 
     @classmethod
-    def build(cls, make, comm=None):
+    def build(cls, make, comm=None, meshes="whole"):
         """The problem make() (e.g. lambda: case.problem(level, degree, p)) built on every
-        rank from its own cells, distributed."""
+        rank from its own cells, distributed; meshes "local": the meshes that make refines
+        (nitsche.meshes.refined) hold only this rank's cells (nitsche.local_mesh)."""
         comm = comm or world()
-        with partition.local(comm):
+        with partition.local(comm, meshes):
             return cls(make(), comm)
 
     def __getattr__(self, name):
@@ -155,9 +156,12 @@ class DistributedProblem:
 
     def whole(self, x):
         """x (valid on the dofs this rank's elements hold) with every free dof's value: an
-        all-gather, for the result and the outputs."""
+        all-gather, for the result and the outputs, unless this rank's elements hold every
+        free dof of x (rank-local meshes; one rank)."""
         x = np.array(x, dtype=float)
-        x[self.local.free] = self.layout.gather(self.layout.vector(self.free_part(x)))
+        if not self.layout.complete:  # (on rank-local meshes every free dof is held)
+            x[self.local.free] = self.layout.gather(
+                self.layout.vector(self.free_part(x)))[self.layout.global_free]
         return x
 
     def energy(self, x):
@@ -304,6 +308,19 @@ def kth_smallest(comm, keys, k, lo, hi):
     return lo
 
 
+def global_numbers(problem):
+    """The global number of each of the problem's dofs and the whole problem's count: each
+    field's (local_mesh.global_dofs: on a whole mesh its own dofs), the fields one after
+    the other."""
+    from .local_mesh import global_dofs
+    parts, total = [], 0
+    for f in problem.fields:
+        number, n = global_dofs(f.dof_basis)
+        parts.append(number + total)
+        total += n
+    return np.concatenate(parts), total
+
+
 class SummedAssembler:
     """The Assembler's evaluations (of all terms or of the given ones) as sums over the
     ranks of their local assemblies: J summed over the ranks (NaN on every rank where one
@@ -321,7 +338,9 @@ class SummedAssembler:
         E, g, data = local.assembler.evaluate(x, terms, hessian)
         E = E if np.all(np.isfinite(g)) else np.nan
         g[layout.dofs] = layout.assembled(g[layout.dofs])
-        g[local.fixed] = self.dp.summed(g[local.fixed])
+        fixed = np.zeros(layout.fixed_count)
+        fixed[layout.fixed_at] = g[local.fixed]
+        g[local.fixed] = self.dp.summed(fixed)[layout.fixed_at]
         return float(self.dp.summed(E)[0]), g, data
 
     def gradient(self, x, terms=None):
@@ -330,11 +349,15 @@ class SummedAssembler:
 
 
 class Layout:
-    """The free dofs numbered rank after rank for PETSc (order[k]: the serial free index of
-    PETSc's dof k), this rank's local numbering of the free dofs its elements hold (held[i]:
-    the serial free index of local free dof i; the `owned` ones first, in PETSc's order,
-    then the ghosts; dofs: their dofs in the dof vector) and the COO pattern of each rank's
-    free-free Hessian entries."""
+    """The free dofs numbered rank after rank for PETSc (order[k]: the global free index of
+    PETSc's dof k; the global free index numbers the whole problem's free dofs in the order
+    of their global numbers, global_numbers, which on whole meshes are the serial dofs),
+    this rank's local numbering of the free dofs its elements hold (held[i]: the position in
+    problem.free of local free dof i; the `owned` ones first, in PETSc's order, then the
+    ghosts; dofs: their dofs in the dof vector; mine: the owned ones' global free indices),
+    the COO pattern of each rank's free-free Hessian entries, and the fixed dofs' places in
+    the whole problem's (fixed_at, for their gradient's sums).  Owners and free dofs are
+    found by reductions of one integer per global dof, once."""
 
     def __init__(self, dp):
         from mpi4py import MPI
@@ -345,32 +368,44 @@ class Layout:
             if t.nel and hasattr(t.measure, "reachable"):  # paired anew each iterate (nitsche.sliding)
                 for f, offset in zip(t.fields, t.offsets):
                     held[t.measure.reachable(f) + offset] = True
-        owner = np.where(held, dp.rank, dp.ranks - 1).astype(np.int64)
+        number, N = global_numbers(problem)
+        owner = np.full(N, dp.ranks - 1, np.int64)
+        owner[number[held]] = dp.rank
         dp.comm.Allreduce(MPI.IN_PLACE, owner, op=MPI.MIN)
-        free_owner = owner[problem.free]
+        kind = np.zeros(N, np.int8)  # 1 free, 2 fixed (where some rank has the dof)
+        kind[number[problem.free]], kind[number[problem.fixed]] = 1, 2
+        dp.comm.Allreduce(MPI.IN_PLACE, kind, op=MPI.MAX)
+        free = np.flatnonzero(kind == 1)
+        self.fixed_at = np.searchsorted(np.flatnonzero(kind == 2), number[problem.fixed])
+        self.fixed_count = int(np.count_nonzero(kind == 2))
+        free_owner = owner[free]
         self.order = np.argsort(free_owner, kind="stable")
         self.counts = np.bincount(free_owner, minlength=dp.ranks)
         self.start = int(self.counts[:dp.rank].sum())
         self.mine = self.order[self.start: self.start + self.counts[dp.rank]]
-        self.n, self.comm = problem.free.size, dp.comm
-        self.pattern = self.coo(problem)  # given to PETSc once (matrix), then dropped
-        self.owner = owner
-        self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
-        self.unshifted = None  # the assembled diagonal while a shift is applied
-        ghost = held[problem.free]
-        ghost[self.mine] = False
-        self.held = np.concatenate([self.mine, np.flatnonzero(ghost)])  # owned, then ghosts
-        self.owned, self.dofs = self.mine.size, problem.free[self.held]
+        self.n, self.comm = free.size, dp.comm
         petsc = np.empty(self.n, np.int64)
         petsc[self.order] = np.arange(self.n)
-        self.petsc_held = petsc[self.held]
+        index = np.searchsorted(free, number[problem.free])  # global free index of local free dofs
+        self.petsc_number = -np.ones(problem.ndofs, np.int64)  # PETSc's number of local free dofs
+        self.petsc_number[problem.free] = petsc[index]
+        self.pattern = self.coo(problem)  # given to PETSc once (matrix), then dropped
+        self.owner = owner[number]  # a rank per local dof
+        self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
+        self.unshifted = None  # the assembled diagonal while a shift is applied
+        mine = np.flatnonzero(self.owner[problem.free] == dp.rank)
+        mine = mine[np.argsort(index[mine])]  # (PETSc's order within a rank: global free order)
+        ghost = np.flatnonzero(held[problem.free] & (self.owner[problem.free] != dp.rank))
+        self.held = np.concatenate([mine, ghost])  # owned, then ghosts
+        self.complete = bool(held[problem.free].all())  # every free dof of the dof vector held
+        self.global_free = index  # (whole: the gathered free vector's entries of problem.free)
+        self.owned, self.dofs = mine.size, problem.free[self.held]
+        self.petsc_held = self.petsc_number[self.dofs]
 
     def coo(self, problem):
         """(rows, cols) in PETSc's numbering of the free-free entries of the rank's problem's
         CSR pattern (keep: their positions in its data; off_rank: those in other ranks' rows)."""
-        a = problem.assembler
-        number = -np.ones(problem.ndofs, np.int64)
-        number[problem.free[self.order]] = np.arange(self.n)
+        a, number = problem.assembler, self.petsc_number
         rows = number[np.repeat(np.arange(problem.ndofs), np.diff(a.indptr))]
         cols = number[a.indices]
         self.keep = np.flatnonzero((rows >= 0) & (cols >= 0))
@@ -556,7 +591,7 @@ class KrylovSolver:
             return
         from petsc4py import PETSc
         B = np.linalg.qr(near_nullspace(self.dp.local))[0]
-        vectors = [self.dp.layout.vector(b[self.dp.layout.held]) for b in B.T]
+        vectors = [self.dp.layout.vector(b[self.dp.layout.held]) for b in B.T]  # (rows: local free)
         self.dp.layout.A.setNearNullSpace(PETSc.NullSpace().create(vectors=vectors, comm=self.dp.comm))
 
     def solve(self, A, b, rtol=0.0):

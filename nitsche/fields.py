@@ -177,7 +177,7 @@ class Field:
             return self.mesh.boundaries[where]
         if callable(where):
             build_facets(self.mesh)  # the facets as scikit-fem numbers them, by one integer sort
-            return self.mesh.facets_satisfying(where, boundaries_only=True)
+            return np.intersect1d(self.mesh.facets_satisfying(where), boundary_facets(self.mesh))
         raise ValueError(f"field '{self.name}': a fixed boundary is 'boundary', a boundary name "
                          f"or a predicate of x, not {where!r}")
 

@@ -84,7 +84,11 @@ def sorted_columns(a):
 
 def boundary_facets(mesh):
     """Indices of the facets that belong to one cell only (as mesh.boundary_facets(),
-    counted from t2f instead of building the facet-to-cell map)."""
+    counted from t2f instead of building the facet-to-cell map); on a rank-local mesh
+    (nitsche.local_mesh) those on the whole mesh's boundary."""
+    numbering = getattr(mesh, "numbering", None)
+    if numbering is not None:
+        return np.flatnonzero(numbering.boundary)
     build_facets(mesh)
     return np.flatnonzero(np.bincount(mesh.t2f.ravel(), minlength=mesh.facets.shape[1]) == 1)
 

@@ -21,16 +21,19 @@ import weakref
 
 import numpy as np
 
-_ACTIVE = []  # the communicator of the partition being built in, innermost last
+_ACTIVE = []  # (communicator, meshes) of the partition being built in, innermost last
 _CELLS = {}  # (id(mesh), ranks) -> this rank's cells, dropped with the mesh
 
 
 @contextlib.contextmanager
-def local(comm):
+def local(comm, meshes="whole"):
     """Build fields, measures and problems on this rank's cells of every mesh; comm None:
     on every cell (inside a partition: what one rank computes by itself, e.g. a study of
-    its own whole problems)."""
-    _ACTIVE.append(comm)
+    its own whole problems).  meshes "local": nitsche.meshes.refined builds only this
+    rank's cells of the refined mesh (nitsche.local_mesh); "whole": every rank the whole."""
+    if meshes not in ("whole", "local"):
+        raise ValueError(f"meshes must be 'whole' or 'local', not {meshes!r}")
+    _ACTIVE.append((comm, meshes))
     try:
         yield comm
     finally:
@@ -39,7 +42,12 @@ def local(comm):
 
 def active():
     """The communicator of the partition being built in, or None (serial set-up)."""
-    return _ACTIVE[-1] if _ACTIVE else None
+    return _ACTIVE[-1][0] if _ACTIVE else None
+
+
+def local_meshes():
+    """Whether refined meshes are built rank-local (partition.local(comm, meshes="local"))."""
+    return bool(_ACTIVE) and _ACTIVE[-1][0] is not None and _ACTIVE[-1][1] == "local"
 
 
 def key():
@@ -58,9 +66,10 @@ def dual_graph(mesh):
 
 
 def cells(mesh):
-    """This rank's cells of the mesh (sorted), or None outside a partition (all cells)."""
+    """This rank's cells of the mesh (sorted), or None outside a partition and on a
+    rank-local mesh (all its cells)."""
     comm = active()
-    if comm is None:
+    if comm is None or hasattr(mesh, "numbering"):
         return None
     k = (id(mesh), comm.size)
     if k not in _CELLS:

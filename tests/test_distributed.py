@@ -51,8 +51,8 @@ def mpirun(ranks, *args, cwd=ROOT):
     return out.stdout
 
 
-def distributed(ranks, solver, levels):
-    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_solve.py"), solver,
+def distributed(ranks, solver, levels, *options):
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_solve.py"), solver, *options,
                    *[f"{name}:{level}" for name, level in levels.items()])
     return {r["case"]: r for r in map(json.loads, lines.strip().splitlines())}
 
@@ -119,6 +119,28 @@ def test_ranks_give_the_serial_energy_and_iterations(ranks, reference):
     assert (runs["elastic-contact"]["stats"]["straddling_constraint_elements"] > 0) == (ranks > 1)
     for r in runs.values():
         assert r["stats"].get("mumps_ordering") == nested_dissection(r), r["stats"]
+
+
+LOCAL = {"obstacle": 3, "two-membrane": 3}  # cases whose meshes nitsche.meshes.refined makes
+
+
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+def test_rank_local_meshes_give_the_serial_energy_and_iterations(ranks, reference):
+    """With rank-local meshes (each rank refines its own cells of a partitioned coarse mesh,
+    nitsche.local_mesh) the serial energy, Newton iterations and constraint report; each
+    rank's meshes hold its own cells only (the ranks' cells add up to the whole mesh's) and
+    its dof vectors a part of the whole (its cells' dofs: below the serial count on 2 and 3
+    ranks, the shared vertices counted on each rank that holds them)."""
+    runs = distributed(ranks, "direct", LOCAL, "--local-meshes")
+    agree(runs, {k: reference[k] for k in LOCAL}, ranks)
+    for name, level in LOCAL.items():
+        case = cases.get(name)
+        whole = case.problem(level, case.degrees[0], case.parameters({}))
+        cells = sum(f.mesh.nelements for f in whole.fields)
+        r = runs[name]
+        assert sum(r["mesh_cells"]) == cells, (name, r["mesh_cells"], cells)
+        assert sum(r["local_dofs"]) >= whole.ndofs and \
+            (ranks == 1 or max(r["local_dofs"]) < 0.75 * whole.ndofs), (name, r["local_dofs"], whole.ndofs)
 
 
 def nested_dissection(run):
