@@ -1,8 +1,9 @@
 """Strong scaling and memory per rank of the distributed engine: under
-`mpirun -n R python benchmarks/distributed_scaling.py CASE LEVEL SOLVER`, each rank builds its
-part of the case's problem (nitsche.partition) and Newton solves from zero; then every rank
+`mpirun -n R python benchmarks/distributed_scaling.py CASE LEVEL SOLVER [--local-meshes]`, each
+rank builds its part of the case's problem (nitsche.partition; with --local-meshes on the
+meshes of its own cells, nitsche.local_mesh) and Newton solves from zero; then every rank
 writes its piece of the solution (nitsche.pvtu), and rank 0 rebuilds the whole problem and
-writes its VTU, as `mpirun nitsche run` did before the pieces (and still does for the case's
+writes its VTU (not on local meshes), as `mpirun nitsche run` did before the pieces (and still does for the case's
 own figures and report unless --pieces-only).  Rank 0 prints one JSON line: set-up, Newton and
 output seconds (wall: the slowest rank's; CPU: each rank's, less moved by other jobs on shared
 cores), Newton iterations, energy, the numbers summed (reduced + broadcast) and all-gathered
@@ -33,7 +34,7 @@ def peak_mib():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def main(name, level, solver):
+def main(name, level, solver, meshes="whole"):
     case = cases.get(name)
     p = case.parameters({})
     from petsc4py import PETSc  # (its memory counted in the baseline)
@@ -41,7 +42,7 @@ def main(name, level, solver):
     load = os.getloadavg()[0]
     baseline = peak_mib()
     t, c = time.perf_counter(), time.process_time()
-    problem = DistributedProblem.build(lambda: case.problem(level, case.degrees[0], p))
+    problem = DistributedProblem.build(lambda: case.problem(level, case.degrees[0], p), meshes=meshes)
     setup, setup_cpu = time.perf_counter() - t, time.process_time() - c
     after_setup = peak_mib()
     c = time.process_time()
@@ -57,7 +58,8 @@ def main(name, level, solver):
     pieces, pieces_cpu = time.perf_counter() - t, time.process_time() - c
     after_pieces = peak_mib()
     stats = result.solver_stats
-    row = dict(case=name, level=level, unknowns=int(problem.free.size), ranks=comm.size,
+    row = dict(case=name, level=level, unknowns=int(problem.unknowns), ranks=comm.size, meshes=meshes,
+               local_dofs=comm.gather(int(problem.local.ndofs), root=0),
                setup_seconds=comm.allreduce(setup, op=max_op()),
                newton_seconds=comm.allreduce(result.seconds, op=max_op()),
                pieces_seconds=comm.allreduce(pieces, op=max_op()),
@@ -79,13 +81,14 @@ def main(name, level, solver):
                negative_pivots=stats["negative_pivots"], lobpcg_steps=stats["lobpcg_steps"],
                **{k: stats[k] for k in ("mumps_ordering", "factor_entries_estimated",
                                         "factor_entries", "factor_flops") if k in stats})
-    if comm.rank == 0:
+    if comm.rank == 0 and meshes == "whole":
         t, c = time.perf_counter(), time.process_time()
         serial, r = whole(case, problem, result, case.degrees[0], p)
         write_vtu(os.path.join(folder, "whole"), serial, r.x)
         row.update(whole_vtu_seconds=round(time.perf_counter() - t, 2),
                    whole_vtu_cpu_seconds=round(time.process_time() - c, 2),
                    whole_vtu_peak_mib=round(peak_mib()))
+    if comm.rank == 0:
         shutil.rmtree(folder)
         row.update(load_average=[round(load, 2), round(os.getloadavg()[0], 2)])
         print(json.dumps(row), flush=True)
@@ -108,4 +111,5 @@ def max_op():
 
 
 if __name__ == "__main__":
-    main(sys.argv[1], int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "gamg")
+    main(sys.argv[1], int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "gamg",
+         "local" if "--local-meshes" in sys.argv[4:] else "whole")

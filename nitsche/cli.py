@@ -67,6 +67,11 @@ def parser():
                      help="under mpirun: write result.json's common keys and the ranks' pieces of "
                           "the solution (.pvtu) only, not the outputs that need the whole problem "
                           "on rank 0 (the case's errors, report and figures, solution.png)")
+    run.add_argument("--local-meshes", action="store_true",
+                     help="under mpirun: each rank refines only its own cells of a partitioned "
+                          "coarse mesh (triangle meshes that the case refines with "
+                          "nitsche.meshes.refined; P1 fields for nested iteration); the outputs "
+                          "are those of --pieces-only")
     st = sub.add_parser("study", help="uniform refinement study with nested iteration", add_help=False)
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")
@@ -163,6 +168,9 @@ def check_options(args):
     if getattr(args, "pieces_only", False) and not args.ranks:
         raise ParameterError("--pieces-only is for runs under mpirun (mpirun -n N nitsche run "
                              "...); a serial run writes all its outputs")
+    if getattr(args, "local_meshes", False) and not args.ranks:
+        raise ParameterError("--local-meshes is for runs under mpirun (mpirun -n N nitsche run "
+                             "...); a serial run holds the whole mesh")
     if args.maxiter < 0:
         raise ParameterError(f"--maxiter must be >= 0 (Newton iterations), got {args.maxiter}")
     if not (math.isfinite(args.rtol) and 0 < args.rtol < 1):
@@ -236,7 +244,7 @@ def execute(case, args, p, out, options):
         if not comm.bcast(None, root=0):  # rank 0 could not open the folder (it says why)
             return USAGE
         return follow(case, args, p, options)
-    engine = distributed.DistributedProblem.build if comm is not None else None
+    engine = engine_of(args) if comm is not None else None
     opened, folder = False, None
     try:
         folder = OutputFolder(out, overwrite=args.overwrite)
@@ -248,7 +256,7 @@ def execute(case, args, p, out, options):
                 rc = commands.run(case, args.level, args.degree, p, folder, options,
                                   nested=args.nested, verbose=args.verbose,
                                   global_check=args.global_check, engine=engine,
-                                  whole_outputs=not args.pieces_only)
+                                  whole_outputs=whole_outputs(args))
             else:
                 rc = commands.study(case, args.levels, args.degree, p, folder, options,
                                     start=args.start)
@@ -271,15 +279,27 @@ def execute(case, args, p, out, options):
     return rc
 
 
+def engine_of(args):
+    """The distributed engine of a run under mpirun: DistributedProblem.build, on rank-local
+    meshes with --local-meshes."""
+    meshes = "local" if getattr(args, "local_meshes", False) else "whole"
+    return lambda make: distributed.DistributedProblem.build(make, meshes=meshes)
+
+
+def whole_outputs(args):
+    """Whether a run under mpirun writes the outputs beyond result.json and the pieces (not
+    with --pieces-only, nor on rank-local meshes, where no rank holds the whole mesh)."""
+    return not (args.pieces_only or args.local_meshes)
+
+
 def follow(case, args, p, options):
     """A rank other than 0 of a run under mpirun: its part of the solve and of the outputs
     (its pieces of the solution; rank 0 commits the folder)."""
     from . import commands
     try:
         return commands.run(case, args.level, args.degree, p, None, options, nested=args.nested,
-                            global_check=args.global_check,
-                            engine=distributed.DistributedProblem.build,
-                            whole_outputs=not args.pieces_only)
+                            global_check=args.global_check, engine=engine_of(args),
+                            whole_outputs=whole_outputs(args))
     except OSError:  # a piece could not be written (raised on every rank): rank 0 reports
         return WRITE_FAILED
 

@@ -99,11 +99,13 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
         print(f"nitsche: Newton failed at level {failure['level']} ({failure['reason']}): "
               f"levels {failure['level']}..{level} were not solved; the report and the files "
               f"are those of level {reached}, the finest converged one", file=sys.stderr)
-    print(f"{case.name}: level {reached}, degree {degree}, {problem.ndofs} dofs "
-          f"({problem.free.size} unknowns); Newton iterations per level {its}")
+    dofs, unknowns = (problem.whole_ndofs, problem.unknowns) if engine else \
+        (problem.ndofs, problem.free.size)
+    print(f"{case.name}: level {reached}, degree {degree}, {dofs} dofs "
+          f"({unknowns} unknowns); Newton iterations per level {its}")
     print(result.report())
     data = dict(case=case.name, level=level, level_reached=reached, degree=degree,
-                dofs=int(problem.ndofs), unknowns=int(problem.free.size),
+                dofs=int(dofs), unknowns=int(unknowns),
                 converged=result.converged and failure is None, reason=result.reason,
                 level_converged=result.converged, failure=failure,
                 newton_iterations=result.iterations, residuals=result.residuals,
@@ -114,7 +116,7 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
                 solver=result.solver, solver_stats=result.solver_stats, ranks=result.ranks,
                 parameters=vars(p),
                 alpha0_limits=problem.alpha0_limits, constraints=result.constraints,
-                reactions=reactions(problem, result.x))
+                reactions=problem.reactions(result.x) if engine else reactions(problem, result.x))
     if failure and reached < level:
         data["reason"] = f"level {failure['level']}: {failure['reason']}"
     vtu = solution_writer(problem, out) if engine else \

@@ -107,7 +107,10 @@ class DistributedProblem:
         self.straddling = self.comm.allreduce(sum(
             int((self.layout.owner[t.global_dofs] != self.rank).any(axis=1).sum())
             for t in local.constraint_terms))  # constraint elements holding another rank's dofs
+        self.owned_fixed = self.layout.owner[local.fixed] == self.rank
         self.layout.owner = None  # (a rank per dof) read by the set-up only
+        self.fixed_fields = [f.name for f in local.fields  # fields with fixed dofs on any rank
+                             if self.comm.allreduce(int(f.fixed_dofs.size))]
 
     @classmethod
     def build(cls, make, comm=None, meshes="whole"):
@@ -163,6 +166,50 @@ class DistributedProblem:
             x[self.local.free] = self.layout.gather(
                 self.layout.vector(self.free_part(x)))[self.layout.global_free]
         return x
+
+    @property
+    def unknowns(self):
+        """The whole problem's free dofs (all ranks')."""
+        return self.layout.n
+
+    @property
+    def whole_ndofs(self):
+        """The whole problem's dofs (all ranks')."""
+        return self.layout.whole_ndofs
+
+    def reactions(self, x):
+        """nitsche.reactions.reactions of the whole problem: each rank's sums over the fixed
+        dofs it owns (where the gradient is the ranks' sum), summed over the ranks."""
+        from .reactions import reactions
+        g = self.gradient(x)
+        g[self.local.fixed[~self.owned_fixed]] = 0.0
+        mine = reactions(self.local, x, gradient=g, fields=self.fixed_fields)
+        flat = [v for regions in mine.values() for values in regions.values() for v in values]
+        total = iter(self.summed(np.array(flat, dtype=float)).tolist())
+        return {f: {r: [next(total) for _ in values] for r, values in regions.items()}
+                for f, regions in mine.items()}
+
+    def prolongate_field(self, fine, coarse, u):
+        """The fine field's dofs of the coarse field's function u (nested iteration,
+        study.prolongate): Field.prolongate on a whole mesh; on a rank-local mesh, for P1
+        fields, the mean of the values at each vertex's two parents (local_mesh.Numbering:
+        the coarse vertices whose midpoint it is), read from the coarse field all-gathered
+        by global number (a rank's coarse cells need not hold its fine vertices' parents)."""
+        from .fields import vertex_numbered
+        from .local_mesh import global_dofs
+        if not hasattr(fine.mesh, "numbering"):
+            return fine.prolongate(coarse, u)
+        if not (vertex_numbered(fine) and vertex_numbered(coarse)):
+            raise ValueError(f"field '{fine.name}': nested iteration on rank-local meshes "
+                             "prolongates P1 fields only: run with --no-nested or whole meshes")
+        number, n = global_dofs(coarse.dof_basis)
+        values = np.empty(n)
+        values[np.concatenate(self.comm.allgather(number))] = \
+            np.concatenate(self.comm.allgather(np.asarray(u, dtype=float)))
+        self.layout.gathered_numbers += n
+        a, b = fine.mesh.numbering.parents
+        v = values.reshape(-1, fine.dof_basis.nodal_dofs.shape[0])  # (vertices, components)
+        return (0.5 * (v[a] + v[b])).ravel()
 
     def energy(self, x):
         """J_h(x)."""
@@ -369,6 +416,7 @@ class Layout:
                 for f, offset in zip(t.fields, t.offsets):
                     held[t.measure.reachable(f) + offset] = True
         number, N = global_numbers(problem)
+        self.whole_ndofs = N
         owner = np.full(N, dp.ranks - 1, np.int64)
         owner[number[held]] = dp.rank
         dp.comm.Allreduce(MPI.IN_PLACE, owner, op=MPI.MIN)

@@ -20,17 +20,18 @@ def dof_names(field):
     return names
 
 
-def reactions(problem, x):
+def reactions(problem, x, gradient=None, fields=None):
     """{field: {region: [R per component]}} for every field with fixed dofs: the regions
     are 'all' (every fixed dof) and the boundaries named in the field's `fixed` (the dofs
     each one holds: a corner held in x by one and in y by another is split between them),
     or, when `fixed` names none, each named boundary of the mesh with fixed dofs on it (a
     corner then counts for both); the components are those of the value dofs ('u', or
-    'u^1', 'u^2' (, 'u^3'))."""
-    g = problem.gradient(x)
+    'u^1', 'u^2' (, 'u^3')).  gradient: the gradient at x where given; fields: the names of
+    the fields to report (default those with fixed dofs)."""
+    g = problem.gradient(x) if gradient is None else gradient
     out = {}
     for f in problem.fields:
-        if f.fixed_dofs.size == 0:
+        if (f.name not in fields) if fields is not None else f.fixed_dofs.size == 0:
             continue
         R = g[problem.offsets[f.name]: problem.offsets[f.name] + f.ndofs]
         names = dof_names(f)

@@ -19,10 +19,17 @@ from .newton import RTOL, NotConverged
 
 
 def prolongate(coarse, x, fine):
-    """The coarse problem's solution x as a dof vector of the fine problem."""
+    """The coarse problem's solution x as a dof vector of the fine problem: each field's
+    Field.prolongate, or the fine problem's own prolongate_field where it has one (a
+    distributed problem on rank-local meshes)."""
     parts = coarse.split(x)
-    return fine.join({f.name: f.prolongate(coarse.by_name[f.name], parts[f.name])
-                      for f in fine.fields})
+    field = getattr(fine, "prolongate_field", None) or (lambda f, c, u: f.prolongate(c, u))
+    return fine.join({f.name: field(f, coarse.by_name[f.name], parts[f.name]) for f in fine.fields})
+
+
+def unknowns(problem):
+    """The whole problem's free dofs (a distributed problem's: all ranks')."""
+    return getattr(problem, "unknowns", None) or problem.free.size
 
 
 def mesh_size(problem):
@@ -158,7 +165,7 @@ def solve_nested(case, level, degree, p, newton_options=None, first=0, progress=
                                          COARSE_REDUCTION, ahead=ahead, **(newton_options or {})):
             its.append(result.iterations)
             if progress:
-                print(f"[level {k}/{level}] {problem.free.size} unknowns: {result.iterations} "
+                print(f"[level {k}/{level}] {unknowns(problem)} unknowns: {result.iterations} "
                       f"Newton iterations, {result.seconds:.2f} s", file=sys.stderr, flush=True)
             if not result.converged:
                 failure = dict(level=k, reason=result.reason)

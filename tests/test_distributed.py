@@ -234,6 +234,23 @@ def test_pvtu_pieces_hold_every_cell_once_with_the_serial_values(tmp_path, name,
     problem, result = solve_nested(case, level, case.degrees[0], case.parameters({}),
                                    dict(solver="superlu"))[:2]
     serial = write_vtu(str(tmp_path / "serial"), problem, result.x)
+    pieces_agree(out, serial, ranks)
+    expected = reactions(problem, result.x)
+    reactions_agree(data["reactions"], expected)
+    # the case's outputs from the ranks' pieces (no whole problem rebuilt on rank 0)
+    assert data["outputs_from_pieces"] and case.outputs_from_pieces
+    errors = case.errors(problem, result, case.parameters({}))
+    assert data["errors"].keys() == errors.keys() and (errors or name != "obstacle")
+    for k, v in errors.items():  # two Newton solves to rtol 1e-10 (measured: 5e-10 at most)
+        assert abs(data["errors"][k] - v) <= 1e-8 * abs(v), (k, data["errors"][k], v)
+    assert (out / "solution.png").stat().st_size > 0
+
+
+def pieces_agree(out, serial, ranks):
+    """The .pvtu collections in `out` against the serial VTU files: one piece per rank,
+    together every serial cell once, the point data (at the same points) to 1e-7 and the
+    cell data to 1e-12 of the serial ones."""
+    import meshio
     collections = sorted(p for p in out.iterdir() if p.suffix == ".pvtu")
     assert len(collections) == len(serial)
     for collection, whole_path in zip(collections, sorted(serial)):
@@ -254,18 +271,40 @@ def test_pvtu_pieces_hold_every_cell_once_with_the_serial_values(tmp_path, name,
                 w = whole.cell_data[k][0][rows]
                 assert np.allclose(v, w, rtol=1e-12, atol=0.0, equal_nan=True), k
         assert (seen == 1).all(), (collection, np.bincount(seen))
-    expected = reactions(problem, result.x)
+
+
+def reactions_agree(data, expected):
+    """result.json's reactions against the serial ones (1e-7 of the largest)."""
+    assert data.keys() == expected.keys()
     for f, regions in expected.items():
+        assert data[f].keys() == regions.keys()
         for region, R in regions.items():
             scale = max(np.abs(R).max(), 1e-300)
-            assert np.abs(np.subtract(data["reactions"][f][region], R)).max() <= 1e-7 * scale
-    # the case's outputs from the ranks' pieces (no whole problem rebuilt on rank 0)
-    assert data["outputs_from_pieces"] and case.outputs_from_pieces
-    errors = case.errors(problem, result, case.parameters({}))
-    assert data["errors"].keys() == errors.keys() and (errors or name != "obstacle")
-    for k, v in errors.items():  # two Newton solves to rtol 1e-10 (measured: 5e-10 at most)
-        assert abs(data["errors"][k] - v) <= 1e-8 * abs(v), (k, data["errors"][k], v)
-    assert (out / "solution.png").stat().st_size > 0
+            assert np.abs(np.subtract(data[f][region], R)).max() <= 1e-7 * scale
+
+
+@pytest.mark.parametrize("name, ranks", [("two-membrane", 3), ("obstacle", 2)])
+def test_local_meshes_run_writes_the_serial_pieces(tmp_path, name, ranks):
+    """mpirun nitsche run --local-meshes (each rank refines its own cells, nested iteration
+    across levels prolongated by global vertex numbers): the serial energy, the pieces
+    hold every cell once with the serial values (the multiplier averaged across the ranks
+    by global vertex), the serial reactions (each rank's owned fixed dofs, summed), the
+    whole problem's dof counts, and no whole-problem outputs."""
+    from nitsche.io import write_vtu
+    from nitsche.reactions import reactions
+    out, level = tmp_path / "run", 3
+    mpirun(ranks, "-m", "nitsche.cli", "run", name, "--level", str(level), "--solver", "direct",
+           "--local-meshes", "--out", str(out))
+    data = json.loads((out / "result.json").read_text())
+    case = cases.get(name)
+    problem, result = solve_nested(case, level, case.degrees[0], case.parameters({}),
+                                   dict(solver="superlu"))[:2]
+    assert data["ranks"] == ranks and data["converged"] and not data["whole_problem_outputs"]
+    assert abs(data["energy"] - result.energy) <= 1e-10 * abs(result.energy)
+    assert (data["dofs"], data["unknowns"]) == (problem.ndofs, problem.free.size)
+    assert data["solver_stats"]["ranks"] == ranks and "errors" not in data
+    pieces_agree(out, write_vtu(str(tmp_path / "serial"), problem, result.x), ranks)
+    reactions_agree(data["reactions"], reactions(problem, result.x))
 
 
 def test_pieces_only_writes_no_whole_problem_outputs(tmp_path):
