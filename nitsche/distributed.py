@@ -423,6 +423,9 @@ class Layout:
         kind = np.zeros(N, np.int8)  # 1 free, 2 fixed (where some rank has the dof)
         kind[number[problem.free]], kind[number[problem.fixed]] = 1, 2
         dp.comm.Allreduce(MPI.IN_PLACE, kind, op=MPI.MAX)
+        if (kind[number[problem.free]] != 1).any():
+            raise ValueError("a dof is free on this rank and fixed on another: the ranks' parts "
+                             "of the problem must fix the same dofs")
         free = np.flatnonzero(kind == 1)
         self.fixed_at = np.searchsorted(np.flatnonzero(kind == 2), number[problem.fixed])
         self.fixed_count = int(np.count_nonzero(kind == 2))
@@ -445,7 +448,8 @@ class Layout:
         mine = mine[np.argsort(index[mine])]  # (PETSc's order within a rank: global free order)
         ghost = np.flatnonzero(held[problem.free] & (self.owner[problem.free] != dp.rank))
         self.held = np.concatenate([mine, ghost])  # owned, then ghosts
-        self.complete = bool(held[problem.free].all())  # every free dof of the dof vector held
+        self.complete = dp.comm.allreduce(  # every rank's elements hold all its free dofs
+            bool(held[problem.free].all()), op=MPI.LAND)
         self.global_free = index  # (whole: the gathered free vector's entries of problem.free)
         self.owned, self.dofs = mine.size, problem.free[self.held]
         self.petsc_held = self.petsc_number[self.dofs]

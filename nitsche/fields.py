@@ -133,7 +133,7 @@ class Field:
         self.dof_basis = shared_basis(mesh, element, DOFS)
         X, W = get_quadrature(mesh.refdom, 2 * element.maxdeg if intorder is None else intorder)
         self.quadrature = X, W  # the reference points and weights of `basis` (skfem's default)
-        self.fixed_dofs = self._fixed_dofs(fixed)
+        self.fixed_dofs = fixed_everywhere(self.dof_basis, self._fixed_dofs(fixed))
         self.fixed_values = self._fixed_values(value)
 
     @property
@@ -337,6 +337,23 @@ class Field:
                 raise NotImplementedError(f"field '{coarse.name}': no Hessian for u_xy dofs")
             out[sel] = H[0, 1][sel]
         return out
+
+
+def fixed_everywhere(basis, dofs):
+    """The dofs `dofs` of the basis, and on a rank-local mesh (nitsche.local_mesh) also those
+    that another rank holding them fixes: a vertex on the whole mesh's fixed boundary may
+    touch this rank's cells at a corner only, its boundary facets on another rank (one
+    reduction of a flag per global dof, at set-up)."""
+    comm = partition.active()
+    if comm is None or not hasattr(basis.mesh, "numbering"):
+        return dofs
+    from mpi4py import MPI
+    from .local_mesh import global_dofs
+    number, n = global_dofs(basis)
+    flag = np.zeros(n, np.int8)
+    flag[number[dofs]] = 1
+    comm.Allreduce(MPI.IN_PLACE, flag, op=MPI.MAX)
+    return np.flatnonzero(flag[number])
 
 
 def midpoint_pairs(x, p, pairs, rtol=1e-10):

@@ -25,7 +25,8 @@ number of every dof, through `global_dofs`).
 import dataclasses
 
 import numpy as np
-from skfem import MeshTri1
+from skfem import ElementVector, MeshTri1
+from skfem.element import ElementH1
 
 from . import partition
 from .measures import boundary_facets, build_facets
@@ -175,9 +176,12 @@ def global_dofs(basis):
     if numbering is None:
         return np.arange(basis.N), basis.N
     e = basis.elem
-    if getattr(e, "edge_dofs", 0) or (getattr(e, "elem", e).facet_dofs > 1):
-        raise ValueError(f"{type(e).__name__} on a rank-local mesh: elements with dofs on "
-                         "vertices, facets (one per component) and cells only")
+    inner = e.elem if isinstance(e, ElementVector) else e
+    if not isinstance(inner, ElementH1) or e.edge_dofs or inner.facet_dofs > 1:
+        raise ValueError(f"{type(inner).__name__} on a rank-local mesh: Lagrange elements with "
+                         "dofs on vertices, facets (one per component) and cells only (the "
+                         "dofs of a facet must not depend on its orientation); build the "
+                         "meshes whole (run without --local-meshes)")
     NV, NF, NC = numbering.counts
     nn, nf, ni = e.nodal_dofs, e.facet_dofs, e.interior_dofs
     out = np.empty(basis.N, np.int64)

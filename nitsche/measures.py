@@ -338,7 +338,7 @@ class Facets(Measure):
 
     def __init__(self, mesh, facets, intorder=None, weight=None):
         facets = np.asarray(facets, dtype=np.int64)
-        if facets.size == 0:
+        if partition.everywhere(facets.size == 0):  # (a rank-local mesh may hold none of them)
             raise ValueError("the facet selection is empty: check the boundary predicate or name")
         self.facets = facets[partition.owned(mesh, mesh.f2t[0, facets])]
         super().__init__(mesh, lambda e: FacetBasis(mesh, e, facets=self.facets,
@@ -377,7 +377,7 @@ def select_facets(mesh, where=None):
             raise ValueError(f"unknown boundary {where!r}; the mesh has {names}")
         return mesh.boundaries[where]
     if callable(where):
-        return mesh.facets_satisfying(where, boundaries_only=True)
+        return np.intersect1d(mesh.facets_satisfying(where), boundary_facets(mesh))
     return where
 
 
@@ -533,6 +533,10 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     its facet (default nitsche.sliding.HYSTERESIS).  weight w(x) as for cells."""
     if pairing not in ("auto", "supermesh", "points", "current"):
         raise ValueError(f"pairing must be 'auto', 'supermesh', 'points' or 'current', not {pairing!r}")
+    if any(hasattr(f.mesh, "numbering") for f in (field, other) if f is not None):
+        raise ValueError("an interface on a rank-local mesh (nitsche.local_mesh) is not built: "
+                         "it would need the other body's cells that other ranks hold; build "
+                         "the meshes whole (run without --local-meshes)")
     if pairing == "current":
         from .sliding import sliding
         if other is None:

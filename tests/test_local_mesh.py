@@ -3,7 +3,9 @@ vertices, facets, cells and dofs as one whole mesh, without MPI: three random se
 of a coarse mesh, each refined three times, against the whole mesh refined three times."""
 import numpy as np
 import pytest
-from skfem import ElementTriP1, ElementTriP2, ElementVector, MeshTri
+from skfem import ElementTriMorley, ElementTriP1, ElementTriP2, ElementVector, MeshTri
+
+import nitsche as ni
 
 from nitsche.fields import shared_basis, DOFS
 from nitsche.local_mesh import global_dofs, refined_numbered, submesh, whole_numbering
@@ -89,3 +91,29 @@ def test_global_dofs_are_one_numbering_of_the_whole_space(pieces, element):
         for g, x in zip(number, basis.doflocs.T):
             assert np.array_equal(at.setdefault(int(g), x), x)
     assert sorted(at) == list(range(N))
+
+
+def test_what_local_meshes_do_not_build_is_refused(pieces):
+    """An interface on a rank-local mesh (the other body's cells would be on other ranks) and
+    an element whose facet dofs depend on the facet's orientation (Morley's normal
+    derivative) raise errors that say to build the meshes whole."""
+    mesh = pieces[0][0]
+    u = ni.Field("u", mesh, ElementTriP1())
+    with pytest.raises(ValueError, match="interface on a rank-local mesh"):
+        ni.interface(u, lambda x: x[1] < 1e-12)
+    with pytest.raises(ValueError, match="ElementTriMorley on a rank-local mesh"):
+        global_dofs(shared_basis(mesh, ElementTriMorley(), DOFS))
+
+
+def test_fixed_boundaries_are_the_whole_meshes(pieces):
+    """A field fixed on 'boundary' or on a predicate holds the dofs of the whole mesh's
+    boundary only, not those of the facets between pieces; a boundary measure likewise."""
+    parts, whole = pieces
+    for m in parts:
+        on_boundary = np.zeros(m.p.shape[1], bool)
+        on_boundary[m.facets[:, m.numbering.boundary].ravel()] = True
+        u = ni.Field("u", m, ElementTriP1(), fixed="boundary")
+        assert np.array_equal(u.fixed_dofs, np.flatnonzero(on_boundary))
+        low = ni.Field("v", m, ElementTriP1(), fixed=lambda x: x[1] < 0.5)
+        assert on_boundary[low.fixed_dofs].all()
+        assert ni.facets(u).facets.size == m.numbering.boundary.sum()

@@ -23,6 +23,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementVector
 
 import nitsche as ni
+from nitsche.meshes import refined
 from nitsche import partition
 from nitsche.case import OneOf, POSITIVE
 from nitsche.io import write_json
@@ -88,7 +89,7 @@ def block(law, theta, top=(0.02, -0.03), level=2, alpha0=0.05, threshold=0.01, f
 
 def parts(law, theta, top, level, alpha0, threshold, friction):
     """Fields, energy and constraint of the block (see the module docstring)."""
-    m = MeshTri.init_symmetric().refined(level)
+    m = refined(MeshTri.init_symmetric(), level)
     u = ni.Field("u", m, ElementVector(ElementTriP1()), fixed=lambda x: x[1] > 1 - 1e-12,
                  value=lambda x: np.stack([top[0] + 0 * x[0], top[1] + 0 * x[0]]))
     bottom = ni.facets(u, lambda x: x[1] < 1e-12)

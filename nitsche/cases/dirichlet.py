@@ -10,6 +10,7 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementTriP2
 
 import nitsche as ni
+from nitsche.meshes import refined
 from nitsche.ops import dot, grad
 from nitsche.case import POSITIVE
 from nitsche.norms import exact_errors
@@ -47,7 +48,7 @@ def load(x, kappa):
 
 
 def build(level, degree, p):
-    mesh = MeshTri.init_symmetric().refined(level + 1)
+    mesh = refined(MeshTri.init_symmetric(), level + 1)
     u = ni.Field("u", mesh, ElementTriP1() if degree == 1 else ElementTriP2())
 
     def energy(u, x):
