@@ -3,7 +3,8 @@
 Each rank builds its own problem inside nitsche.partition.local (DistributedProblem.build):
 the bases, measures and terms of its own cells only (a METIS partition of each mesh; an
 element belongs to the rank of the cell that owns it), so the set-up and its memory are
-divided among the ranks; the meshes stay whole on every rank.
+divided among the ranks; the meshes stay whole on every rank unless they are rank-local
+(build(..., meshes="local"): nitsche.local_mesh, dofs numbered by global_numbers).
 
 - a free dof is owned by the lowest rank among the elements that hold it; the free dofs a
   rank's elements hold are its owned dofs and its ghosts;
@@ -38,6 +39,7 @@ Newton itself is nitsche.newton.newton, unchanged but for the norms, dot product
 parts it asks of the problem: the same stopping test, line search and result; `ranks` is R.
 """
 import os
+import warnings
 
 import numpy as np
 
@@ -111,6 +113,7 @@ class DistributedProblem:
         self.layout.owner = None  # (a rank per dof) read by the set-up only
         self.fixed_fields = [f.name for f in local.fields  # fields with fixed dofs on any rank
                              if self.comm.allreduce(int(f.fixed_dofs.size))]
+        self.local_meshes = sum(hasattr(m, "numbering") for m in {id(f.mesh): f.mesh for f in local.fields}.values())
 
     @classmethod
     def build(cls, make, comm=None, meshes="whole"):
@@ -119,7 +122,12 @@ class DistributedProblem:
         (nitsche.meshes.refined) hold only this rank's cells (nitsche.local_mesh)."""
         comm = comm or world()
         with partition.local(comm, meshes):
-            return cls(make(), comm)
+            problem = cls(make(), comm)
+        if meshes == "local" and not problem.local_meshes and problem.rank == 0:
+            warnings.warn("local meshes asked for, but the problem's meshes are whole on every "
+                          "rank: a case's meshes are rank-local where it refines them with "
+                          "nitsche.meshes.refined", stacklevel=2)
+        return problem
 
     def __getattr__(self, name):
         return getattr(self.local, name)
@@ -714,6 +722,7 @@ class KrylovSolver:
 
     def stats(self):
         return dict(ranks=self.dp.ranks, ksp_iterations=list(self.iterations),
+                    local_meshes=self.dp.local_meshes,
                     elements=self.dp.elements, off_rank_entries=self.dp.off_rank_entries,
                     straddling_constraint_elements=self.dp.straddling,
                     summed_numbers=self.dp.summed_numbers,

@@ -9,7 +9,8 @@ rank and no ghost cells are needed: a dof that elements of several ranks share i
 by the reductions and by PETSc's COO assembly (nitsche.distributed).
 
 What stays whole on every rank: the meshes (points, cells, facets, the dof numbering) and
-the dof vectors.  Quantities integrated over the cells (nitsche.norms.exact_errors, the
+the dof vectors, unless the meshes are rank-local (local(comm, meshes="local"):
+nitsche.meshes.refined builds this rank's cells only, nitsche.local_mesh).  Quantities integrated over the cells (nitsche.norms.exact_errors, the
 binned pictures of nitsche.plot, the cases' output hooks) are computed inside `local(comm)`
 on this rank's cells and reduced over the ranks (summed, smallest, largest, gathered,
 collected, summed_matrix, first: identities outside).  The other body's boundary is

@@ -315,6 +315,7 @@ def test_local_meshes_run_writes_the_serial_pieces(tmp_path, name, ranks, option
     assert abs(data["energy"] - result.energy) <= 1e-10 * abs(result.energy)
     assert (data["dofs"], data["unknowns"]) == (problem.ndofs, problem.free.size)
     assert data["solver_stats"]["ranks"] == ranks and "errors" not in data
+    assert data["solver_stats"]["local_meshes"] == (option == "--local-meshes")  # meshes rank-local
     pieces_agree(out, write_vtu(str(tmp_path / "serial"), problem, result.x), ranks)
     reactions_agree(data["reactions"], reactions(problem, result.x))
 
