@@ -113,7 +113,8 @@ class DistributedProblem:
         self.layout.owner = None  # (a rank per dof) read by the set-up only
         self.fixed_fields = [f.name for f in local.fields  # fields with fixed dofs on any rank
                              if self.comm.allreduce(int(f.fixed_dofs.size))]
-        self.local_meshes = sum(hasattr(m, "numbering") for m in {id(f.mesh): f.mesh for f in local.fields}.values())
+        meshes = {id(f.mesh): f.mesh for f in local.fields}.values()
+        self.local_meshes = sum(hasattr(m, "numbering") for m in meshes)  # rank-local ones
 
     @classmethod
     def build(cls, make, comm=None, meshes="whole"):
@@ -167,8 +168,8 @@ class DistributedProblem:
 
     def whole(self, x):
         """x (valid on the dofs this rank's elements hold) with every free dof's value: an
-        all-gather, for the result and the outputs, unless this rank's elements hold every
-        free dof of x (rank-local meshes; one rank)."""
+        all-gather, for the result and the outputs, unless every rank's elements hold all of
+        its free dofs (rank-local meshes; one rank)."""
         x = np.array(x, dtype=float)
         if not self.layout.complete:  # (on rank-local meshes every free dof is held)
             x[self.local.free] = self.layout.gather(

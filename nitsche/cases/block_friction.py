@@ -23,10 +23,10 @@ import numpy as np
 from skfem import MeshTri, ElementTriP1, ElementVector
 
 import nitsche as ni
-from nitsche.meshes import refined
 from nitsche import partition
 from nitsche.case import OneOf, POSITIVE
 from nitsche.io import write_json
+from nitsche.meshes import refined
 from nitsche.ops import dot, tangent, sym_grad
 from nitsche.study import prolongate
 
