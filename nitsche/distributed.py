@@ -422,8 +422,9 @@ class Layout:
     problem.free of local free dof i; the `owned` ones first, in PETSc's order, then the
     ghosts; dofs: their dofs in the dof vector; mine: the owned ones' global free indices),
     the COO pattern of each rank's free-free Hessian entries, and the fixed dofs' places in
-    the whole problem's (fixed_at, for their gradient's sums).  Owners and free dofs are
-    found by reductions of one integer per global dof, once."""
+    the whole problem's (fixed_at, for their gradient's sums).  Owners, free and fixed dofs
+    and their indices are found once, at each number's home rank (partition.by_number): no
+    rank holds an array of all global dofs (on whole meshes every rank holds every dof)."""
 
     def __init__(self, dp):
         from mpi4py import MPI
@@ -435,43 +436,58 @@ class Layout:
                 for f, offset in zip(t.fields, t.offsets):
                     held[t.measure.reachable(f) + offset] = True
         number, N = global_numbers(problem)
-        self.whole_ndofs = N
-        owner = np.full(N, dp.ranks - 1, np.int64)
-        owner[number[held]] = dp.rank
-        dp.comm.Allreduce(MPI.IN_PLACE, owner, op=MPI.MIN)
-        kind = np.zeros(N, np.int8)  # 1 free, 2 fixed (where some rank has the dof)
-        kind[number[problem.free]], kind[number[problem.fixed]] = 1, 2
-        dp.comm.Allreduce(MPI.IN_PLACE, kind, op=MPI.MAX)
-        if (kind[number[problem.free]] != 1).any():
+        self.whole_ndofs, self.comm = N, dp.comm
+        owner = partition.by_number(dp.comm, number, np.where(held, dp.rank, dp.ranks - 1), N, "min")
+        kind = np.full(problem.ndofs, 2, np.int8)  # 1 free, 2 fixed
+        kind[problem.free] = 1
+        counted = {}
+
+        def indices(block, lo):
+            """[kind, free index, fixed index] of a home block's numbers, the indices counted
+            over the blocks of all ranks (collective)."""
+            free, fixed = block == 1, block == 2
+            counts = np.array(dp.comm.allgather((int(free.sum()), int(fixed.sum()))), np.int64)
+            before = counts[:dp.rank].sum(axis=0)
+            counted.update(free=int(counts[:, 0].sum()), fixed=int(counts[:, 1].sum()))
+            return np.stack([block, before[0] + np.cumsum(free) - 1,
+                             before[1] + np.cumsum(fixed) - 1], axis=1)
+        kinds = partition.by_number(dp.comm, number, kind, N, "max", answer=indices)
+        if (kinds[problem.free, 0] != 1).any():
             raise ValueError("a dof is free on this rank and fixed on another: the ranks' parts "
                              "of the problem must fix the same dofs")
-        free = np.flatnonzero(kind == 1)
-        self.fixed_at = np.searchsorted(np.flatnonzero(kind == 2), number[problem.fixed])
-        self.fixed_count = int(np.count_nonzero(kind == 2))
-        free_owner = owner[free]
-        self.order = np.argsort(free_owner, kind="stable")
-        self.counts = np.bincount(free_owner, minlength=dp.ranks)
+        self.n, self.fixed_count = counted["free"], counted["fixed"]
+        self.fixed_at = kinds[problem.fixed, 2]
+        index = kinds[problem.free, 1]  # the global free index of each local free dof
+        own = owner[problem.free] == dp.rank
+        mine = np.flatnonzero(own)
+        mine = mine[np.argsort(index[mine])]  # PETSc's order within a rank: global free order
+        self.counts = np.array(dp.comm.allgather(mine.size), np.int64)
         self.start = int(self.counts[:dp.rank].sum())
-        self.mine = self.order[self.start: self.start + self.counts[dp.rank]]
-        self.n, self.comm = free.size, dp.comm
-        petsc = np.empty(self.n, np.int64)
-        petsc[self.order] = np.arange(self.n)
-        index = np.searchsorted(free, number[problem.free])  # global free index of local free dofs
+        self.mine = index[mine]
+        petsc = np.full(index.size, -1, np.int64)
+        petsc[mine] = self.start + np.arange(mine.size)
         self.petsc_number = -np.ones(problem.ndofs, np.int64)  # PETSc's number of local free dofs
-        self.petsc_number[problem.free] = petsc[index]
+        self.petsc_number[problem.free] = partition.by_number(dp.comm, index, petsc, self.n, "max")
         self.pattern = self.coo(problem)  # given to PETSc once (matrix), then dropped
-        self.owner = owner[number]  # a rank per local dof
+        self.owner = owner  # a rank per local dof
         self.gathered_numbers = 0  # numbers all-gathered (every rank receives the whole vector)
         self.unshifted = None  # the assembled diagonal while a shift is applied
-        mine = np.flatnonzero(self.owner[problem.free] == dp.rank)
-        mine = mine[np.argsort(index[mine])]  # (PETSc's order within a rank: global free order)
-        ghost = np.flatnonzero(held[problem.free] & (self.owner[problem.free] != dp.rank))
+        ghost = np.flatnonzero(held[problem.free] & ~own)
         self.held = np.concatenate([mine, ghost])  # owned, then ghosts
         self.complete = dp.comm.allreduce(  # every rank's elements hold all its free dofs
             bool(held[problem.free].all()), op=MPI.LAND)
         self.global_free = index  # (whole: the gathered free vector's entries of problem.free)
         self.owned, self.dofs = mine.size, problem.free[self.held]
         self.petsc_held = self.petsc_number[self.dofs]
+        self._order = None
+
+    @property
+    def order(self):
+        """The global free index of each PETSc dof (order[k] for PETSc's dof k): every rank's
+        owned ones, rank after rank (an all-gather, for the whole free vector; collective)."""
+        if self._order is None:
+            self._order = np.concatenate(self.comm.allgather(self.mine))
+        return self._order
 
     def coo(self, problem):
         """(rows, cols) in PETSc's numbering of the free-free entries of the rank's problem's

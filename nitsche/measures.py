@@ -338,7 +338,8 @@ class Facets(Measure):
 
     def __init__(self, mesh, facets, intorder=None, weight=None):
         facets = np.asarray(facets, dtype=np.int64)
-        if partition.everywhere(facets.size == 0):  # (a rank-local mesh may hold none of them)
+        local = hasattr(mesh, "numbering")  # a rank-local mesh may hold none of them
+        if partition.everywhere(facets.size == 0) if local else facets.size == 0:
             raise ValueError("the facet selection is empty: check the boundary predicate or name")
         self.facets = facets[partition.owned(mesh, mesh.f2t[0, facets])]
         super().__init__(mesh, lambda e: FacetBasis(mesh, e, facets=self.facets,

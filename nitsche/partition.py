@@ -165,6 +165,41 @@ def summed_matrix(A):
     return total
 
 
+def by_number(comm, numbers, values, n, op, answer=None):
+    """For each of this rank's global numbers (0 <= number < n, each at most once per rank)
+    the reduction op ("min", "max", "sum") over the ranks of the values they give there,
+    or what answer(block, lo) makes of the reduced values of this rank's block of numbers
+    lo, lo + 1, ... (called once on every rank: it may be collective; it may return rows of
+    several columns).  Each number's values meet at its home rank (the numbers split into R
+    equal blocks) by one all-to-all and go back by another, so that no rank holds O(n)
+    numbers (at most its own and its block's)."""
+    R, numbers = comm.size, np.asarray(numbers, np.int64)
+    home = numbers * R // max(n, 1)
+    order = np.argsort(home, kind="stable")
+    sent = np.bincount(home, minlength=R)
+    got = np.array(comm.alltoall(sent.tolist()), np.int64)
+    where = np.empty(got.sum(), np.int64)
+    value = np.empty(got.sum(), np.asarray(values).dtype)
+    comm.Alltoallv([numbers[order], sent], [where, got])
+    comm.Alltoallv([np.ascontiguousarray(np.asarray(values)[order]), sent], [value, got])
+    lo, hi = -(-comm.rank * n // R), -(-(comm.rank + 1) * n // R)  # the numbers whose home this is
+    ufunc = {"min": np.minimum, "max": np.maximum, "sum": np.add}[op]
+    limits = np.iinfo(value.dtype) if value.dtype.kind in "iu" else None
+    identity = 0 if op == "sum" else (limits.max if limits else np.inf) if op == "min" else \
+        (limits.min if limits else -np.inf)
+    block = np.full(hi - lo, identity, value.dtype)
+    ufunc.at(block, where - lo, value)
+    block = block if answer is None else np.asarray(answer(block, lo))
+    back = np.ascontiguousarray(block[where - lo])
+    columns = back.shape[1:]
+    out = np.empty((numbers.size,) + columns, back.dtype)
+    width = int(np.prod(columns, dtype=np.int64))
+    comm.Alltoallv([back.reshape(-1), got * width], [out.reshape(-1), sent * width])
+    result = np.empty_like(out)
+    result[order] = out
+    return result
+
+
 def first(value):
     """Rank 0's value on every rank of the partition (value outside)."""
     comm = active()

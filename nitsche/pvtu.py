@@ -42,7 +42,7 @@ def write_pieces(prefix, dp, x, staging):
         with partition.local(comm):
             cells = partition.own_cells(mesh)
         total = summed if not hasattr(mesh, "numbering") else \
-            lambda a, n=mesh.numbering: by_global_vertex(a, n, summed)
+            lambda a, n=mesh.numbering: partition.by_number(comm, n.vertices, a, n.counts[0], "sum")
         path, arrays = None, None
         if cells.size:
             piece = mesh_vtu(local, x, mesh, values, cells=cells, total=total)
@@ -63,15 +63,6 @@ def write_pieces(prefix, dp, x, staging):
         raise OSError("; ".join(f"rank {r}: {e}" for r, e in enumerate(errors) if e))
     return pieces_written, [write_collection(path, paths, *arrays)
                             for path, paths, arrays in collections]
-
-
-def by_global_vertex(a, numbering, summed):
-    """The per-vertex sums a of a rank-local mesh (nitsche.local_mesh) summed over the ranks
-    that hold each vertex: placed by global vertex number into a vector of the whole mesh's
-    vertices, summed (summed: over the ranks) and read back."""
-    whole = np.zeros((numbering.counts[0],) + np.shape(a)[1:])
-    whole[numbering.vertices] = a
-    return summed(whole)[numbering.vertices]
 
 
 def write_atomically(mesh, path):

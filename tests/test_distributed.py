@@ -334,6 +334,17 @@ def test_pieces_only_writes_no_whole_problem_outputs(tmp_path):
         ["result.json", "solution.pvtu", "solution_r0.vtu", "solution_r1.vtu"]
 
 
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+def test_reductions_by_number_at_home_ranks(ranks):
+    """partition.by_number (the Layout's owners, free and fixed indices and PETSc numbers):
+    on every rank the minimum and maximum over the ranks of the values given at each of its
+    numbers, and an answer counted across the home blocks, equal those computed from every
+    rank's data gathered (random numbers and values)."""
+    lines = mpirun(ranks, str(ROOT / "tests" / "mpi_by_number.py"))
+    rows = json.loads(lines.strip().splitlines()[-1])
+    assert len(rows) == ranks and all(all(r.values()) for r in rows), rows
+
+
 @pytest.mark.parametrize("ranks", [2, 3])
 def test_ghosted_vectors_equal_the_serial_ones(ranks):
     """On every rank the gradient (free dofs its elements hold, owned and ghosts, and the
