@@ -17,7 +17,7 @@ from .plot import plot_convergence, plot_path, plot_solution
 from .pvtu import write_pieces
 from .quantities import evaluate
 from .reactions import reactions
-from .study import StudyFailed, run_study, solve_nested, table
+from .study import StudyFailed, dofs, run_study, solve_nested, table, unknowns
 
 
 def solve(case, level, degree, p, options, nested=True, verbose=False, engine=None):
@@ -99,13 +99,11 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
         print(f"nitsche: Newton failed at level {failure['level']} ({failure['reason']}): "
               f"levels {failure['level']}..{level} were not solved; the report and the files "
               f"are those of level {reached}, the finest converged one", file=sys.stderr)
-    dofs, unknowns = (problem.whole_ndofs, problem.unknowns) if engine else \
-        (problem.ndofs, problem.free.size)
-    print(f"{case.name}: level {reached}, degree {degree}, {dofs} dofs "
-          f"({unknowns} unknowns); Newton iterations per level {its}")
+    print(f"{case.name}: level {reached}, degree {degree}, {dofs(problem)} dofs "
+          f"({unknowns(problem)} unknowns); Newton iterations per level {its}")
     print(result.report())
     data = dict(case=case.name, level=level, level_reached=reached, degree=degree,
-                dofs=int(dofs), unknowns=int(unknowns),
+                dofs=int(dofs(problem)), unknowns=int(unknowns(problem)),
                 converged=result.converged and failure is None, reason=result.reason,
                 level_converged=result.converged, failure=failure,
                 newton_iterations=result.iterations, residuals=result.residuals,

@@ -342,18 +342,16 @@ class Field:
 def fixed_everywhere(basis, dofs):
     """The dofs `dofs` of the basis, and on a rank-local mesh (nitsche.local_mesh) also those
     that another rank holding them fixes: a vertex on the whole mesh's fixed boundary may
-    touch this rank's cells at a corner only, its boundary facets on another rank (one
-    reduction of a flag per global dof, at set-up)."""
+    touch this rank's cells at a corner only, its boundary facets on another rank (a flag
+    per dof, reduced at each global number's home rank: partition.by_number)."""
     comm = partition.active()
     if comm is None or not hasattr(basis.mesh, "numbering"):
         return dofs
-    from mpi4py import MPI
     from .local_mesh import global_dofs
     number, n = global_dofs(basis)
-    flag = np.zeros(n, np.int8)
-    flag[number[dofs]] = 1
-    comm.Allreduce(MPI.IN_PLACE, flag, op=MPI.MAX)
-    return np.flatnonzero(flag[number])
+    flag = np.zeros(number.size, np.int8)
+    flag[dofs] = 1
+    return np.flatnonzero(partition.by_number(comm, number, flag, n, "max"))
 
 
 def midpoint_pairs(x, p, pairs, rtol=1e-10):

@@ -99,14 +99,15 @@ def refined_numbered(mesh, numbering):
     f = b[half] - nv
     facets = np.empty(a.size, np.int64)
     facets[half] = 2 * numbering.facets[f] + (gv[a[half]] != ends.min(axis=0)[f])
-    cell, corner = _cell_of_midpoints(mesh, a[~half] - nv, b[~half] - nv)
+    cells_of = _cells_of_facet_pairs(mesh)
+    cell, corner = _cell_of_midpoints(mesh, cells_of, a[~half] - nv, b[~half] - nv)
     facets[~half] = 2 * NF + 3 * numbering.cells[cell] + _vertex_rank(mesh, gv, cell, corner)
     boundary = np.zeros(a.size, bool)
     boundary[half] = numbering.boundary[f]
     # a fine cell: one old vertex (the corner child at it) or three midpoints (the middle one)
     t = np.sort(fine.t.astype(np.int64), axis=0)
     middle = t[0] >= nv
-    cell, corner = _cell_of_midpoints(mesh, t[1] - nv, t[2] - nv)
+    cell, corner = _cell_of_midpoints(mesh, cells_of, t[1] - nv, t[2] - nv)
     cells = 4 * numbering.cells[cell] + np.where(middle, 3, _vertex_rank(mesh, gv, cell, corner))
     parents = np.hstack([np.tile(gv, (2, 1)), ends])
     return fine, Numbering(vertices, facets, cells, (NV + NF, 2 * NF + 3 * NC, 4 * NC), boundary,
@@ -118,20 +119,23 @@ def _pair_keys(pairs, n):
     return pairs[0].astype(np.int64) * n + pairs[1]
 
 
-def _cell_of_midpoints(mesh, f1, f2):
-    """The coarse cell whose facets f1 and f2 are (two facets of one cell), and the cell's
-    vertex that they share."""
+def _cells_of_facet_pairs(mesh):
+    """(keys, cells): the sorted keys lo nf + hi of every pair of facets (lo < hi) of one
+    cell, and that cell."""
     t2f = mesh.t2f.astype(np.int64)
     nf, nc = mesh.facets.shape[1], mesh.t.shape[1]
-    pairs, cells = [], []
-    for i, j in ((0, 1), (1, 2), (0, 2)):
-        lo, hi = np.minimum(t2f[i], t2f[j]), np.maximum(t2f[i], t2f[j])
-        pairs.append(lo * nf + hi)
-        cells.append(np.arange(nc))
-    keys, cells = np.concatenate(pairs), np.concatenate(cells)
+    keys = np.concatenate([np.minimum(t2f[i], t2f[j]) * nf + np.maximum(t2f[i], t2f[j])
+                           for i, j in ((0, 1), (1, 2), (0, 2))])
     order = np.argsort(keys, kind="stable")
-    at = order[np.searchsorted(keys[order], np.minimum(f1, f2) * nf + np.maximum(f1, f2))]
-    cell = cells[at]
+    return keys[order], np.tile(np.arange(nc), 3)[order]
+
+
+def _cell_of_midpoints(mesh, cells_of, f1, f2):
+    """The coarse cell whose facets f1 and f2 are (two facets of one cell; cells_of:
+    _cells_of_facet_pairs), and the cell's vertex that they share."""
+    keys, cells = cells_of
+    nf = mesh.facets.shape[1]
+    cell = cells[np.searchsorted(keys, np.minimum(f1, f2) * nf + np.maximum(f1, f2))]
     e1, e2 = mesh.facets[:, f1], mesh.facets[:, f2]
     corner = np.where((e1[0] == e2[0]) | (e1[0] == e2[1]), e1[0], e1[1])
     return cell, corner

@@ -10,8 +10,9 @@ by the reductions and by PETSc's COO assembly (nitsche.distributed).
 
 What stays whole on every rank: the meshes (points, cells, facets, the dof numbering) and
 the dof vectors, unless the meshes are rank-local (local(comm, meshes="local"):
-nitsche.meshes.refined builds this rank's cells only, nitsche.local_mesh).  Quantities integrated over the cells (nitsche.norms.exact_errors, the
-binned pictures of nitsche.plot, the cases' output hooks) are computed inside `local(comm)`
+nitsche.meshes.refined builds this rank's cells only, nitsche.local_mesh).  Quantities
+integrated over the cells (nitsche.norms.exact_errors, the binned pictures of nitsche.plot,
+the cases' output hooks) are computed inside `local(comm)`
 on this rank's cells and reduced over the ranks (summed, smallest, largest, gathered,
 collected, summed_matrix, first: identities outside).  The other body's boundary is
 thereby the all-gathered contact surface against which each rank pairs its own interface

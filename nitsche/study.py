@@ -29,7 +29,12 @@ def prolongate(coarse, x, fine):
 
 def unknowns(problem):
     """The whole problem's free dofs (a distributed problem's: all ranks')."""
-    return getattr(problem, "unknowns", None) or problem.free.size
+    return getattr(problem, "unknowns", problem.free.size)
+
+
+def dofs(problem):
+    """The whole problem's dofs (a distributed problem's: all ranks')."""
+    return getattr(problem, "whole_ndofs", problem.ndofs)
 
 
 def mesh_size(problem):
