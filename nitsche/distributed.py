@@ -200,35 +200,35 @@ class DistributedProblem:
 
     def prolongate_field(self, fine, coarse, u):
         """The fine field's dofs of the coarse field's function u (nested iteration,
-        study.prolongate): Field.prolongate on a whole mesh; on a rank-local mesh, for P1
-        fields, the mean of the values at each vertex's two parents (local_mesh.Numbering:
-        the coarse vertices whose midpoint it is): from the rank's own coarse values where
+        study.prolongate): Field.prolongate on a whole mesh; on a rank-local mesh, for P1 and
+        Q1 fields, the mean of the values at each vertex's parents (local_mesh.Numbering:
+        the coarse vertices whose mean it is: an edge's midpoint, a face's or cell's centre): from the rank's own coarse values where
         every rank's coarse mesh holds its fine vertices' parents (the fine mesh refined from
         it), else from the coarse field all-gathered by global number (the coarser levels,
         each partitioned by itself)."""
         from mpi4py import MPI
         from .fields import vertex_numbered
-        from .local_mesh import global_dofs
+        from .local_mesh import global_dofs, parent_mean
         if not hasattr(fine.mesh, "numbering"):
             return fine.prolongate(coarse, u)
         if not (vertex_numbered(fine) and vertex_numbered(coarse)):
             raise ValueError(f"field '{fine.name}': nested iteration on rank-local meshes "
-                             "prolongates P1 fields only: run with --no-nested or whole meshes")
+                             "prolongates P1 and Q1 fields only: run with --no-nested or whole "
+                             "meshes")
         d = fine.dof_basis.nodal_dofs.shape[0]  # components
         parents, held = fine.mesh.numbering.parents, coarse.mesh.numbering.vertices
         order = np.argsort(held)
         at = np.minimum(np.searchsorted(held, parents, sorter=order), max(held.size - 1, 0))
         mine = held.size > 0 and bool((held[order[at]] == parents).all())
         if self.comm.allreduce(mine, op=MPI.LAND):
-            v = np.asarray(u, dtype=float).reshape(-1, d)[order[at]]  # (2, vertices, components)
-            return (0.5 * (v[0] + v[1])).ravel()
+            v = np.asarray(u, dtype=float).reshape(-1, d)[order[at]]  # (parents, vertices, components)
+            return parent_mean(v).ravel()
         number, n = global_dofs(coarse.dof_basis)
         values = np.empty(n)
         values[np.concatenate(self.comm.allgather(number))] = \
             np.concatenate(self.comm.allgather(np.asarray(u, dtype=float)))
         self.layout.gathered_numbers += n
-        v = values.reshape(-1, d)[parents]  # (2, vertices, components)
-        return (0.5 * (v[0] + v[1])).ravel()
+        return parent_mean(values.reshape(-1, d)[parents]).ravel()
 
     def energy(self, x):
         """J_h(x)."""

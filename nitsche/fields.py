@@ -3,7 +3,7 @@ import weakref
 from functools import cached_property
 
 import numpy as np
-from skfem import Basis, CellBasis, ElementTetP1, ElementTriP1, ElementVector
+from skfem import Basis, CellBasis, ElementHex1, ElementQuad1, ElementTetP1, ElementTriP1, ElementVector
 from skfem.assembly.basis.abstract_basis import AbstractBasis
 from skfem.quadrature import get_quadrature
 from skfem.element import ElementH1
@@ -365,11 +365,12 @@ def midpoint_pairs(x, p, pairs, rtol=1e-10):
 
 
 def vertex_numbered(field):
-    """Whether the field is P1 on triangles or tetrahedra (scalar or vector) with the dofs of
-    vertex i numbered i d .. i d + d - 1 (d components)."""
+    """Whether the field is P1 on triangles or tetrahedra or Q1 on quadrilaterals or
+    hexahedra (scalar or vector) with the dofs of vertex i numbered i d .. i d + d - 1 (d
+    components)."""
     e = field.element.elem if isinstance(field.element, ElementVector) else field.element
     nodal = field.dof_basis.nodal_dofs
-    return type(e) in (ElementTriP1, ElementTetP1) and field.ndofs == nodal.size == field.mesh.p.shape[1] * nodal.shape[0] \
+    return type(e) in (ElementTriP1, ElementTetP1, ElementQuad1, ElementHex1) and field.ndofs == nodal.size == field.mesh.p.shape[1] * nodal.shape[0] \
         and np.array_equal(nodal.T.ravel(), np.arange(field.ndofs))
 
 

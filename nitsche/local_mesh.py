@@ -25,7 +25,7 @@ number of every dof, through `global_dofs`).
 import dataclasses
 
 import numpy as np
-from skfem import ElementVector, MeshTri1
+from skfem import ElementVector, MeshHex1, MeshQuad1, MeshTri1
 from skfem.element import ElementH1
 
 from . import partition
@@ -39,51 +39,133 @@ CELLS_PER_RANK = 256  # the coarsest whole mesh partitioned has at least this ma
 class Numbering:
     """Global numbers of a local mesh's vertices (nv,), facets (nf,) and cells (nc,), the
     whole mesh's counts (NV, NF, NC), which local facets lie on the whole mesh's boundary
-    (nf,), and each vertex's coarser-mesh parents (2, nv): the global numbers of the two
-    coarse vertices whose midpoint it is (a coarse vertex twice), or None on the base mesh."""
+    (nf,), each vertex's coarser-mesh parents (2^dim, nv): the global numbers of the coarse
+    vertices whose mean it is (repeated to 2^dim rows; a coarse vertex itself), or None on
+    the base mesh; in 3D the edges' global numbers (ne,) and their count NE; which cells
+    are this rank's own (nc,; None: all), the others ghosts, held for an interface."""
     vertices: np.ndarray
     facets: np.ndarray
     cells: np.ndarray
     counts: tuple
     boundary: np.ndarray
     parents: np.ndarray = None
+    edges: np.ndarray = None
+    edge_count: int = None
+    owned: np.ndarray = None
+
+    def numbers(self, dim):
+        """The global numbers of the local entities of each dimension 0..dim, and their
+        whole counts."""
+        NV, NF, NC = self.counts
+        if dim == 2:
+            return [self.vertices, self.facets, self.cells], [NV, NF, NC]
+        return [self.vertices, self.edges, self.facets, self.cells], [NV, self.edge_count, NF, NC]
+
+
+# the dimensions of the coarse entities that scikit-fem's uniform refinement gives a new
+# vertex (edge midpoints, face and cell centres), in the order it numbers them after the
+# coarse vertices
+NEW_VERTICES = {MeshTri1: (1,), MeshQuad1: (1, 2), MeshHex1: (1, 2, 3)}
+
+
+def entities(mesh):
+    """conn[D][q] (k, n_D): the local numbers of the q-dimensional entities of each
+    D-dimensional one (0 <= q <= D <= dim: vertices, edges (3D), facets, cells; conn[D][D]
+    each entity itself)."""
+    build_facets(mesh)
+    dim = mesh.dim()
+    if dim == 2:
+        conn = {1: {0: mesh.facets}, 2: {0: mesh.t, 1: mesh.t2f}}
+    else:
+        conn = {1: {0: mesh.edges}, 2: {0: mesh.facets, 1: mesh.f2e},
+                3: {0: mesh.t, 1: mesh.t2e, 2: mesh.t2f}}
+    conn[0] = {}
+    for D in range(dim + 1):
+        conn[D][D] = np.arange(mesh.p.shape[1] if D == 0 else conn[D][0].shape[1])[None]
+    return conn
+
+
+def _check_type(mesh):
+    if type(mesh) not in NEW_VERTICES:
+        raise ValueError(f"rank-local meshes are built for triangles, quadrilaterals and "
+                         f"hexahedra (MeshTri1, MeshQuad1, MeshHex1), not {type(mesh).__name__}: "
+                         "run without local meshes")
+
+
+def _parents(mesh, numbers):
+    """(2^dim, fine vertices): the global numbers of the coarse vertices whose mean each
+    vertex of mesh refined once is (scikit-fem's order: the coarse vertices, then a vertex
+    per entity of each dimension in NEW_VERTICES, in the entities' order)."""
+    conn, rows = entities(mesh), 2 ** mesh.dim()
+    parts = [conn[D][0] for D in (0,) + NEW_VERTICES[type(mesh)]]
+    return np.hstack([numbers[p[np.arange(rows) % p.shape[0]]] for p in parts]).astype(np.int64)
+
+
+def parent_mean(v):
+    """The mean over the parents (the first axis of v: 2^dim rows, Numbering.parents) by
+    halves, 1/2 (v[:m] + v[m:]), so that repeated parents give their values exactly."""
+    while v.shape[0] > 1:
+        v = 0.5 * (v[:v.shape[0] // 2] + v[v.shape[0] // 2:])
+    return v[0]
 
 
 def whole_numbering(mesh, coarse=None):
     """The Numbering of a whole mesh (its own numbers), parents from `coarse` when the mesh
-    is coarse refined once (the coarse vertices first, then the facets' midpoints in facet
-    order, as scikit-fem refines)."""
+    is coarse refined once (scikit-fem's order of the new vertices: NEW_VERTICES)."""
+    _check_type(mesh)
     build_facets(mesh)
-    if coarse is not None:
-        build_facets(coarse)
     nv, nf, nc = mesh.p.shape[1], mesh.facets.shape[1], mesh.t.shape[1]
     boundary = np.zeros(nf, bool)
     boundary[boundary_facets(mesh)] = True
-    parents = None
-    if coarse is not None:
-        n = coarse.p.shape[1]
-        parents = np.hstack([np.tile(np.arange(n), (2, 1)), coarse.facets]).astype(np.int64)
-    return Numbering(np.arange(nv), np.arange(nf), np.arange(nc), (nv, nf, nc), boundary, parents)
+    parents = None if coarse is None else _parents(coarse, np.arange(coarse.p.shape[1]))
+    ne = mesh.edges.shape[1] if mesh.dim() == 3 else None
+    return Numbering(np.arange(nv), np.arange(nf), np.arange(nc), (nv, nf, nc), boundary, parents,
+                     None if ne is None else np.arange(ne), ne)
 
 
-def submesh(mesh, numbering, cells):
-    """The mesh of the given cells of a whole (numbered) mesh, its vertices numbered in the
-    order of their global numbers, with their Numbering."""
-    used = np.unique(mesh.t[:, cells])
-    sub = MeshTri1(mesh.p[:, used], np.searchsorted(used, mesh.t[:, cells]))
+def submesh(mesh, numbering, cells, ghosts=None):
+    """The mesh of the given cells of a whole (numbered) mesh and of the ghost cells (held
+    but not owned: Numbering.owned), its vertices numbered in the order of their global
+    numbers, with their Numbering."""
+    held = cells if ghosts is None else np.union1d(cells, ghosts)
+    used = np.unique(mesh.t[:, held])
+    sub = type(mesh)(mesh.p[:, used], np.searchsorted(used, mesh.t[:, held]))
     build_facets(sub)
-    g = numbering.vertices[used][sub.facets]  # (2, nf) global vertex numbers, sorted per column
-    facets = np.searchsorted(_pair_keys(numbering.vertices[mesh.facets], numbering.counts[0]),
-                             _pair_keys(g, numbering.counts[0]))
+    gv = numbering.vertices
+    facets = _lookup(gv[mesh.facets], gv[used][sub.facets])
     parents = None if numbering.parents is None else numbering.parents[:, used]
-    return sub, Numbering(numbering.vertices[used], numbering.facets[facets],
-                          numbering.cells[cells], numbering.counts,
-                          numbering.boundary[facets], parents)
+    edges = None if mesh.dim() == 2 else numbering.edges[_lookup(gv[mesh.edges], gv[used][sub.edges])]
+    owned = None if ghosts is None else np.isin(held, cells)  # (all True: no ghost needed)
+    return sub, Numbering(gv[used], numbering.facets[facets], numbering.cells[held],
+                          numbering.counts, numbering.boundary[facets], parents, edges,
+                          numbering.edge_count, owned)
+
+
+def _lookup(rows, query):
+    """The columns of rows (k, n) that hold the vertex sets of the columns of query (k, m)."""
+    keys = _set_keys(rows)
+    order = np.argsort(keys)
+    return order[np.searchsorted(keys, _set_keys(query), sorter=order)]
+
+
+def _set_keys(rows):
+    """One comparable key per column of an integer array: its sorted entries' bytes."""
+    s = np.ascontiguousarray(np.sort(np.asarray(rows, np.int64), axis=0).T)
+    return s.view(np.dtype((np.void, 8 * s.shape[1]))).ravel()
 
 
 def refined_numbered(mesh, numbering):
     """The local mesh refined once (scikit-fem's uniform refinement) and its Numbering from
     the coarse one (see the module docstring)."""
+    _check_type(mesh)
+    fine, n, parent = (_refined_triangles if type(mesh) is MeshTri1 else _refined_tensor)(mesh, numbering)
+    if numbering.owned is not None:  # a child of an own cell is own, of a ghost a ghost
+        n.owned = numbering.owned[parent]
+    return fine, n
+
+
+def _refined_triangles(mesh, numbering):
+    """refined_numbered of a triangle mesh."""
     build_facets(mesh)
     NV, NF, NC = numbering.counts
     nv = mesh.p.shape[1]
@@ -109,9 +191,60 @@ def refined_numbered(mesh, numbering):
     middle = t[0] >= nv
     cell, corner = _cell_of_midpoints(mesh, cells_of, t[1] - nv, t[2] - nv)
     cells = 4 * numbering.cells[cell] + np.where(middle, 3, _vertex_rank(mesh, gv, cell, corner))
-    parents = np.hstack([np.tile(gv, (2, 1)), ends])
     return fine, Numbering(vertices, facets, cells, (NV + NF, 2 * NF + 3 * NC, 4 * NC), boundary,
-                           parents)
+                           _parents(mesh, gv)), cell
+
+
+def _refined_tensor(mesh, numbering):
+    """refined_numbered of a quadrilateral or hexahedral mesh: each fine vertex is new at a
+    coarse entity of dimension D (a vertex, an edge's midpoint, a face's or cell's centre),
+    numbered sum_{D' < D} N_D' + its global number; a fine entity of dimension d lies in the
+    coarse entity P of its vertices' highest D, and the vertex of lowest dimension D - d is
+    new at one of P's entities Q of that dimension: its number is
+        sum_{d <= D' < D} k(d, D') N_D' + k(d, D) P + (the rank of Q's number among those
+        of P's k(d, D) entities of dimension D - d)
+    (a corner child of a cell, face or edge by its coarse vertex; a face inside a
+    hexahedron by its edge, an edge inside a face by its edge, inside a hexahedron by its
+    face; a quadrilateral's inner facet by its facet)."""
+    dim = mesh.dim()
+    conn = entities(mesh)
+    g, N = numbering.numbers(dim)
+    fine = uniformly_refined(mesh, 1)
+    build_facets(fine)
+    start = np.cumsum([0] + [conn[D][D].shape[1] for D in range(dim + 1)])
+
+    def k(d, D):
+        return conn[D][D - d].shape[0]
+
+    def numbered(ent, d):
+        """Global numbers of fine entities (vertex lists, (m,) or (j, m)) of dimension d, and
+        each one's P (dimension, local number)."""
+        vd = np.searchsorted(start, ent, side="right") - 1  # the dimension each vertex is new at
+        col = np.arange(ent.shape[1])
+        top, low = vd.argmax(axis=0), vd.argmin(axis=0)
+        D, P = vd[top, col], (ent - start[vd])[top, col]
+        q, Q = vd[low, col], (ent - start[vd])[low, col]
+        out = np.empty(ent.shape[1], np.int64)
+        for DD in np.unique(D):
+            s = D == DD
+            qd = DD - d
+            assert (q[s] == qd).all()
+            rank = np.sum(g[qd][conn[DD][qd][:, P[s]]] < g[qd][Q[s]], axis=0)
+            offset = sum(k(d, D2) * N[D2] for D2 in range(d, DD))
+            out[s] = offset + k(d, DD) * g[DD][P[s]] + rank
+        return out, D, P
+
+    counts = [sum(k(d, D) * N[D] for D in range(d, dim + 1)) for d in range(dim + 1)]
+    vertices = numbered(np.arange(fine.p.shape[1])[None], 0)[0]
+    facets, D, P = numbered(fine.facets, dim - 1)
+    boundary = np.zeros(facets.size, bool)
+    corner = D == dim - 1  # a part of a coarse facet
+    boundary[corner] = numbering.boundary[P[corner]]
+    cells, _, parent = numbered(fine.t, dim)
+    edges = numbered(fine.edges, 1)[0] if dim == 3 else None
+    return fine, Numbering(vertices, facets, cells, (counts[0], counts[dim - 1], counts[dim]),
+                           boundary, _parents(mesh, g[0]), edges,
+                           counts[1] if dim == 3 else None), parent
 
 
 def _pair_keys(pairs, n):
@@ -147,12 +280,13 @@ def _vertex_rank(mesh, gv, cell, vertex):
     return np.sum(g < gv[vertex], axis=0)
 
 
-def local_refined(mesh, times, comm):
+def local_refined(mesh, times, comm, ghosts_for=None):
     """This rank's cells of the mesh refined `times` times (see the module docstring), with
-    mesh.numbering."""
-    if type(mesh) is not MeshTri1:
-        raise ValueError(f"rank-local meshes are built for triangle meshes (MeshTri1), not "
-                         f"{type(mesh).__name__}: run without local meshes")
+    mesh.numbering; ghosts_for=(other, to_this): also the cells (ghosts: Numbering.owned)
+    that this rank's cells of the rank-local mesh `other`, mapped by to_this (points
+    (dim_other, n) -> (dim, n)), may reach (`reached`), for an interface from `other` onto
+    this mesh (nitsche.measures.interface)."""
+    _check_type(mesh)
     if mesh.boundaries or mesh.subdomains:
         raise ValueError("rank-local meshes keep no named boundaries or subdomains: give "
                          "boundaries as predicates of x, or run without local meshes")
@@ -164,35 +298,60 @@ def local_refined(mesh, times, comm):
         raise ValueError(f"{mesh.t.shape[1]} cells for {comm.size} ranks: refine the mesh more")
     with partition.local(comm):
         mine = partition.cells(mesh)
-    mesh, numbering = submesh(mesh, numbering, mine)
+    ghosts = None
+    if ghosts_for is not None:
+        other, to_this = ghosts_for
+        ghosts = np.setdiff1d(np.flatnonzero(reached(mesh, other, to_this)), mine)
+    mesh, numbering = submesh(mesh, numbering, mine, ghosts)
     for _ in range(times - k):
         mesh, numbering = refined_numbered(mesh, numbering)
     mesh.numbering = numbering
     return mesh
 
 
+def reached(mesh, other, to_this):
+    """Which cells of mesh (whole, coarse) a point of the other mesh's cells, mapped by
+    to_this, may lie in: those whose centre is within (its largest cell diameter + the
+    other mesh's largest cell diameter) of a mapped vertex of the other mesh (a superset:
+    any point of a cell of the other mesh is within that cell's diameter of its vertices,
+    and any point of a cell of mesh within its diameter of its centre)."""
+    from scipy.spatial import cKDTree
+    from .measures import cell_diameters
+    x = np.asarray(to_this(other.p), dtype=float)
+    if x.shape[0] != mesh.dim():
+        raise ValueError(f"ghosts_for: to_this maps points to dimension {x.shape[0]}, the mesh "
+                         f"has {mesh.dim()}")
+    reach = cell_diameters(mesh).max() + (cell_diameters(other).max() if other.t.shape[1] else 0.0)
+    centres = mesh.p[:, mesh.t].mean(axis=1).T
+    return cKDTree(x.T).query_ball_point(centres, reach, return_length=True) > 0 if x.shape[1] \
+        else np.zeros(mesh.t.shape[1], bool)
+
+
 def global_dofs(basis):
     """The global numbers of a basis's dofs on a local mesh, and the whole space's size:
     laid out as scikit-fem lays out a whole mesh's dofs (vertex v's j-th dof v nn + j, then
-    facet f's NV nn + f nf + j, then cell c's NV nn + NF nf + c ni + j), from the entities'
-    global numbers; a basis on a whole mesh keeps its own numbers."""
+    in 3D edge e's NV nn + e ne + j, then facet f's, then cell c's, each kind after the
+    whole mesh's dofs of the kinds before), from the entities' global numbers; a basis on
+    a whole mesh keeps its own numbers."""
     numbering = getattr(basis.mesh, "numbering", None)
     if numbering is None:
         return np.arange(basis.N), basis.N
     e = basis.elem
     inner = e.elem if isinstance(e, ElementVector) else e
-    if not isinstance(inner, ElementH1) or e.edge_dofs or inner.facet_dofs > 1:
+    if not isinstance(inner, ElementH1) or inner.edge_dofs > 1 or inner.facet_dofs > 1:
         raise ValueError(f"{type(inner).__name__} on a rank-local mesh: Lagrange elements with "
-                         "dofs on vertices, facets (one per component) and cells only (the "
-                         "dofs of a facet must not depend on its orientation); build the "
-                         "meshes whole (run without --local-meshes)")
+                         "dofs on vertices, edges and facets (one per component) and cells only "
+                         "(the dofs of an edge or facet must not depend on its orientation); "
+                         "build the meshes whole (run without --local-meshes)")
     NV, NF, NC = numbering.counts
-    nn, nf, ni = e.nodal_dofs, e.facet_dofs, e.interior_dofs
-    out = np.empty(basis.N, np.int64)
-    for j in range(nn):
-        out[basis.nodal_dofs[j]] = numbering.vertices * nn + j
-    for j in range(nf):
-        out[basis.facet_dofs[j]] = NV * nn + numbering.facets * nf + j
-    for j in range(ni):
-        out[basis.interior_dofs[j]] = NV * nn + NF * nf + numbering.cells * ni + j
-    return out, NV * nn + NF * nf + NC * ni
+    kinds = [(basis.nodal_dofs, numbering.vertices, NV), (basis.facet_dofs, numbering.facets, NF),
+             (basis.interior_dofs, numbering.cells, NC)]
+    if basis.mesh.dim() == 3:
+        kinds.insert(1, (basis.edge_dofs, numbering.edges, numbering.edge_count))
+    out, start = np.empty(basis.N, np.int64), 0
+    for dofs, numbers, count in kinds:
+        per = dofs.shape[0]  # dofs per entity
+        for j in range(per):
+            out[dofs[j]] = start + numbers * per + j
+        start += count * per
+    return out, start

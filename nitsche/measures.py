@@ -512,6 +512,25 @@ class Interface:
         return value_shapes(field, orders)
 
 
+def _check_local_interface(field, other, pairing):
+    """On rank-local meshes (nitsche.local_mesh) an interface reads the other body's cells
+    that this rank's points reach: they must be held (the other mesh built with
+    nitsche.meshes.refined(..., ghosts_for=(this mesh, to_other)), or whole)."""
+    comm = partition.active()
+    if comm is None or comm.size == 1:
+        return
+    if pairing == "current":
+        raise ValueError("an interface paired in the current configuration (pairing='current') "
+                         "on a rank-local mesh is not built: it pairs with the other body's whole "
+                         "current surface; build the meshes whole (run without --local-meshes)")
+    theirs = getattr(other.mesh, "numbering", None) if other is not None else None
+    if other is not None and theirs is not None and theirs.owned is None:
+        raise ValueError(f"interface: the other body's mesh (field '{other.name}') is rank-local "
+                         "without the cells that this rank's points reach: refine it with "
+                         "nitsche.meshes.refined(..., ghosts_for=(this body's mesh, to_other)), "
+                         "or build the meshes whole (run without --local-meshes)")
+
+
 def interface(field, where=None, to_other=None, intorder=None, other=None, pairing="auto",
               reach=None, weight=None, onto=None, hysteresis=None):
     """An interface measure on the body of `field`: its boundary facets `where` (a
@@ -535,9 +554,7 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     if pairing not in ("auto", "supermesh", "points", "current"):
         raise ValueError(f"pairing must be 'auto', 'supermesh', 'points' or 'current', not {pairing!r}")
     if any(hasattr(f.mesh, "numbering") for f in (field, other) if f is not None):
-        raise ValueError("an interface on a rank-local mesh (nitsche.local_mesh) is not built: "
-                         "it would need the other body's cells that other ranks hold; build "
-                         "the meshes whole (run without --local-meshes)")
+        _check_local_interface(field, other, pairing)
     if pairing == "current":
         from .sliding import sliding
         if other is None:

@@ -20,15 +20,19 @@ def graded(length, fine, n_fine, growth):
     return np.array(t)
 
 
-def refined(mesh, times):
+def refined(mesh, times, ghosts_for=None):
     """mesh refined uniformly `times` times, as scikit-fem's mesh.refined(times), with the
     facets that each refinement step reads (t2f, facets) built by measures.build_facets
     (one integer sort, the same arrays as scikit-fem's, about 4x faster); inside
     partition.local(comm, meshes="local") this rank's cells of it only
-    (local_mesh.local_refined)."""
+    (local_mesh.local_refined), and with ghosts_for=(other, to_this) the cells that this
+    rank's cells of the mesh `other` reach when mapped by to_this (points (dim_other, n) ->
+    (dim, n)): those an interface from `other` onto this mesh evaluates this mesh's fields
+    in (nitsche.interface(..., to_other=to_this, other=...))."""
     if partition.local_meshes():
         from .local_mesh import local_refined
-        return local_refined(mesh, times, partition.active())
+        whole = ghosts_for is not None and not hasattr(ghosts_for[0], "numbering")
+        return local_refined(mesh, times, partition.active(), None if whole else ghosts_for)
     return uniformly_refined(mesh, times)
 
 

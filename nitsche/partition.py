@@ -69,9 +69,12 @@ def dual_graph(mesh):
 
 def cells(mesh):
     """This rank's cells of the mesh (sorted), or None outside a partition and on a
-    rank-local mesh (all its cells)."""
-    comm = active()
-    if comm is None or hasattr(mesh, "numbering"):
+    rank-local mesh (all its cells) without ghost cells (on one with them, inside a
+    partition or not, its own cells: local_mesh.Numbering.owned)."""
+    comm, numbering = active(), getattr(mesh, "numbering", None)
+    if numbering is not None:
+        return None if numbering.owned is None else np.flatnonzero(numbering.owned)
+    if comm is None:
         return None
     k = (id(mesh), comm.size)
     if k not in _CELLS:

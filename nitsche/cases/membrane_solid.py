@@ -29,6 +29,7 @@ from skfem.quadrature import get_quadrature
 import nitsche as ni
 from nitsche import partition
 from nitsche.case import Interval, NONNEGATIVE, OneOf, POISSON, POSITIVE
+from nitsche.meshes import refined
 from nitsche.ops import dot, grad, lame, lap, sym_grad
 from nitsche.supermesh import interface_report
 
@@ -67,11 +68,15 @@ def lift(x):
 
 
 def build(level, degree, p):
-    n = p.n0 * 2 ** level
-    t = np.linspace(0.0, 1.0, n + 1)
-    s = np.linspace(0.0, 1.0, (p.m0 or p.n0) * 2 ** level + 1)
     Solid, Sheet, solid_element, sheet_element, intorder = SHAPES[p.cells]
-    cube, membrane = Solid.init_tensor(t, t, t), Sheet.init_tensor(s, s)
+    if p.cells == "hex":  # the tensor meshes of level 0 refined: the same meshes, and under
+        # mpirun --local-meshes each rank's cells only, the cube's with those under its membrane cells
+        t, s = (np.linspace(0.0, 1.0, n + 1) for n in (p.n0, p.m0 or p.n0))
+        membrane = refined(Sheet.init_tensor(s, s), level)
+        cube = refined(Solid.init_tensor(t, t, t), level, ghosts_for=(membrane, lift))
+    else:  # six tetrahedra per cube of the finest grid (refined tetrahedra would differ)
+        t, s = (np.linspace(0.0, 1.0, n * 2 ** level + 1) for n in (p.n0, p.m0 or p.n0))
+        cube, membrane = Solid.init_tensor(t, t, t), Sheet.init_tensor(s, s)
     u = ni.Field("u", cube, ElementVector(solid_element()), fixed=lambda x: x[2] < 1e-12,
                  intorder=intorder)  # the default (64 points on hexahedra) is heavy
     w = ni.Field("w", membrane, sheet_element(), fixed="boundary")
