@@ -1,26 +1,37 @@
-"""Rank-local meshes: this rank's cells of a uniformly refined triangle mesh, refined by the
-rank alone, with the global numbers of its vertices, facets and cells.
+"""Rank-local meshes: this rank's cells of a uniformly refined mesh of triangles,
+quadrilaterals or hexahedra, refined by the rank alone, with the global numbers of its
+vertices, edges (3D), facets and cells.
 
 Inside nitsche.partition.local(comm, meshes="local"), nitsche.meshes.refined(base, n) builds
 the base mesh refined k times whole (k the fewest refinements that give CELLS_PER_RANK cells
 per rank, at most n), partitions its cells (partition.cells: METIS), keeps this rank's cells
 (`submesh`) and refines them the other n - k times by itself (`refined_numbered`): no rank
 holds more of the finer meshes than its own cells.  The mesh it returns carries
-`mesh.numbering` (Numbering): the global number of each of its vertices, facets and cells,
-the same on every rank that holds the entity, and which of its facets lie on the whole
-mesh's boundary (a facet between two ranks' cells is on the local mesh's boundary only).
+`mesh.numbering` (Numbering): the global number of each of its vertices, edges, facets and
+cells, the same on every rank that holds the entity, and which of its facets lie on the
+whole mesh's boundary (a facet between two ranks' cells is on the local mesh's boundary
+only).  With ghosts_for=(other, to_this) the rank also holds the coarse cells that its
+cells of the local mesh `other` reach when mapped by to_this (`reached`), refined along as
+ghosts (Numbering.owned False: no elements of this rank's measures; partition.cells gives
+the own ones): the cells an interface from `other` onto this mesh evaluates fields in.
 
-The global numbers of a refined mesh follow from the coarse ones (NV vertices, NF facets,
-NC cells), so that no rank needs another's cells to find them:
+The global numbers of a refined mesh follow from the coarse ones (NV vertices, NE edges, NF
+facets, NC cells), so that no rank needs another's cells to find them.  Triangles:
   vertices: a coarse vertex keeps its number v; the midpoint of facet f is NV + f;
   facets:   the half of facet f at its endpoint of the smaller number is 2 f, the other
             2 f + 1; the facet between two midpoints of cell c that cuts off its vertex of
             rank r (0, 1, 2 among the cell's vertex numbers) is 2 NF + 3 c + r;
   cells:    the corner child of cell c at its vertex of rank r is 4 c + r, the middle one
             4 c + 3.
+Quadrilaterals and hexahedra (a new vertex at every edge, face and cell; `_refined_tensor`):
+a fine entity lies in the coarse entity of the highest dimension among its vertices' and is
+numbered within it by the rank of the coarse entity its vertex of the lowest dimension is
+new at (e.g. hexahedron c's corner children 8 c + r, the faces inside it 4 NF + 12 c + the
+rank of their edge among the cell's twelve).
 These are not the numbers scikit-fem gives the whole refined mesh; they are a numbering of
 it, which the distributed engine needs (nitsche.distributed.Layout: the owner and PETSc
-number of every dof, through `global_dofs`).
+number of every dof, through `global_dofs`).  Tetrahedra are not refined locally (their
+inner octahedron's split would need its own rule): their cases keep whole meshes.
 """
 import dataclasses
 

@@ -122,20 +122,23 @@ def test_ranks_give_the_serial_energy_and_iterations(ranks, reference):
 
 
 # cases whose meshes nitsche.meshes.refined makes (dirichlet: Nitsche's boundary condition on
-# the whole boundary, so facets between ranks must not count; signorini: a contact side)
-LOCAL = {"obstacle": 3, "two-membrane": 3, "signorini": 2, "dirichlet": 2}
+# the whole boundary, so facets between ranks must not count; signorini: a contact side;
+# membrane-solid: hexahedra and quadrilaterals, an interface from the membrane's cells into
+# the cube's, which holds the cells under the rank's membrane cells as ghosts)
+LOCAL = {"obstacle": 3, "two-membrane": 3, "signorini": 2, "dirichlet": 2, "membrane-solid": 1}
 
 
 @pytest.fixture(scope="module")
 def local_reference(reference):
-    return {**reference, **serial({k: v for k, v in LOCAL.items() if k not in reference}, "superlu")}
+    return {**reference, **serial({k: v for k, v in LOCAL.items() if k not in CASES}, "superlu")}
 
 
 @pytest.mark.parametrize("ranks", [1, 2, 3])
 def test_rank_local_meshes_give_the_serial_energy_and_iterations(ranks, local_reference):
     """With rank-local meshes (each rank refines its own cells of a partitioned coarse mesh,
     nitsche.local_mesh) the serial energy, Newton iterations and constraint report; each
-    rank's meshes hold its own cells only (the ranks' cells add up to the whole mesh's) and
+    rank's meshes hold its own cells (the ranks' own cells add up to the whole mesh's) and
+    ghosts only where an interface reads another rank's cells (membrane-solid's cube), and
     its dof vectors a part of the whole (its cells' dofs: below the serial count on 2 and 3
     ranks, the shared vertices counted on each rank that holds them)."""
     runs = distributed(ranks, "direct", LOCAL, "--local-meshes")
@@ -146,6 +149,7 @@ def test_rank_local_meshes_give_the_serial_energy_and_iterations(ranks, local_re
         cells = sum(f.mesh.nelements for f in whole.fields)
         r = runs[name]
         assert sum(r["mesh_cells"]) == cells, (name, r["mesh_cells"], cells)
+        assert (sum(r["ghost_cells"]) > 0) == (name == "membrane-solid" and ranks > 1), (name, r)
         assert sum(r["local_dofs"]) >= whole.ndofs and \
             (ranks == 1 or max(r["local_dofs"]) < 0.75 * whole.ndofs), (name, r["local_dofs"], whole.ndofs)
 
@@ -292,7 +296,8 @@ def reactions_agree(data, expected):
 
 @pytest.mark.parametrize("name, ranks, option", [
     ("two-membrane", 3, "--local-meshes"), ("obstacle", 2, "--local-meshes"),
-    ("block-friction", 2, "--local-meshes"), ("block-friction", 2, "--pieces-only")])
+    ("block-friction", 2, "--local-meshes"), ("block-friction", 2, "--pieces-only"),
+    ("membrane-solid", 2, "--local-meshes")])
 def test_local_meshes_run_writes_the_serial_pieces(tmp_path, name, ranks, option):
     """mpirun nitsche run --local-meshes (each rank refines its own cells, nested iteration
     across levels prolongated by global vertex numbers): the serial energy, the pieces
@@ -301,10 +306,12 @@ def test_local_meshes_run_writes_the_serial_pieces(tmp_path, name, ranks, option
     whole problem's dof counts, and no whole-problem outputs.  Block friction's top is
     fixed: a rank whose cells touch it at a vertex only fixes that vertex too (its facet is
     on the other rank); its coarse levels have a rank whose elements hold every free dof
-    (the gather of the solution is then still made by all ranks: it was not, and hung)."""
+    (the gather of the solution is then still made by all ranks: it was not, and hung).
+    Membrane-solid: hexahedra and quadrilaterals (prolongated from the parents' mean), the
+    cube's pieces its own cells, not the ghosts under the rank's membrane cells."""
     from nitsche.io import write_vtu
     from nitsche.reactions import reactions
-    out, level = tmp_path / "run", 3
+    out, level = tmp_path / "run", 1 if name == "membrane-solid" else 3
     mpirun(ranks, "-m", "nitsche.cli", "run", name, "--level", str(level), "--solver", "direct",
            option, "--out", str(out))
     data = json.loads((out / "result.json").read_text())
@@ -315,7 +322,8 @@ def test_local_meshes_run_writes_the_serial_pieces(tmp_path, name, ranks, option
     assert abs(data["energy"] - result.energy) <= 1e-10 * abs(result.energy)
     assert (data["dofs"], data["unknowns"]) == (problem.ndofs, problem.free.size)
     assert data["solver_stats"]["ranks"] == ranks and "errors" not in data
-    assert data["solver_stats"]["local_meshes"] == (option == "--local-meshes")  # meshes rank-local
+    meshes = 2 if name == "membrane-solid" else 1  # rank-local meshes: all of the case's
+    assert data["solver_stats"]["local_meshes"] == meshes * (option == "--local-meshes")
     if name == "obstacle":  # level 3 refined from level 2's local mesh (2 ranks: partitioned
         assert data["solver_stats"]["gathered_numbers"] == 0  # at level 2): its start gathers nothing
     pieces_agree(out, write_vtu(str(tmp_path / "serial"), problem, result.x), ranks)

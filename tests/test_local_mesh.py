@@ -2,12 +2,15 @@
 vertices, edges, facets, cells and dofs as one whole mesh, without MPI: three random sets of
 cells of a coarse mesh of triangles, quadrilaterals or hexahedra, each refined by itself,
 against the whole mesh refined as often."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from skfem import (ElementHex1, ElementHex2, ElementQuad1, ElementQuad2, ElementTriMorley, ElementTriP1,
-                   ElementTriP2, ElementVector, MeshHex, MeshQuad, MeshTri, MeshTri1)
+                   ElementTriP2, ElementVector, MeshHex, MeshQuad, MeshTri)
 
 import nitsche as ni
+from nitsche import partition
 
 from nitsche.fields import shared_basis, DOFS
 from nitsche.local_mesh import global_dofs, refined_numbered, submesh, whole_numbering
@@ -120,23 +123,28 @@ def test_global_dofs_are_one_numbering_of_the_whole_space(pieces, which):
     assert sorted(at) == list(range(N))
 
 
-def test_what_local_meshes_do_not_build_is_refused(pieces):
-    """An interface on a rank-local mesh (the other body's cells would be on other ranks) and
-    an element whose facet dofs depend on the facet's orientation (Morley's normal
-    derivative) raise errors that say to build the meshes whole."""
-    mesh = pieces[0][0]
-    if type(mesh) is not MeshTri1:
-        pytest.skip("the refusals are those of any rank-local mesh: checked on triangles")
-    u = ni.Field("u", mesh, ElementTriP1())
-    with pytest.raises(ValueError, match="interface on a rank-local mesh"):
-        ni.interface(u, lambda x: x[1] < 1e-12)
+def test_what_local_meshes_do_not_build_is_refused():
+    """On 2 ranks, an interface into a rank-local mesh built without the ghost cells its
+    points reach, and one paired in the current configuration, and an element whose facet
+    dofs depend on the facet's orientation (Morley's normal derivative) raise errors that
+    say what to do (the interface's checks read the communicator's size only)."""
+    coarse = MeshTri.init_symmetric().refined(2)
+    m, n = submesh(coarse, whole_numbering(coarse), np.arange(10))
+    m.numbering = n
+    u, v = ni.Field("u", m, ElementTriP1()), ni.Field("v", m, ElementTriP1())
+    with partition.local(SimpleNamespace(size=2, rank=0)):
+        with pytest.raises(ValueError, match="ghosts_for=.this body's mesh, to_other"):
+            ni.interface(u, lambda x: x[1] < 1e-12, other=v)
+        with pytest.raises(ValueError, match="pairing='current'.* on a rank-local mesh"):
+            ni.interface(u, lambda x: x[1] < 1e-12, other=v, pairing="current", onto="boundary")
     with pytest.raises(ValueError, match="ElementTriMorley on a rank-local mesh"):
-        global_dofs(shared_basis(mesh, ElementTriMorley(), DOFS))
+        global_dofs(shared_basis(m, ElementTriMorley(), DOFS))
 
 
 def test_fixed_boundaries_are_the_whole_meshes(pieces):
     """A field fixed on 'boundary' or on a predicate holds the dofs of the whole mesh's
-    boundary only, not those of the facets between pieces; a boundary measure likewise."""
+    boundary only, not those of the facets between pieces; a boundary measure likewise,
+    those of its own cells only."""
     parts, whole = pieces
     element = ELEMENTS[whole.t.shape[0]][0]()
     for m in parts:
@@ -146,4 +154,5 @@ def test_fixed_boundaries_are_the_whole_meshes(pieces):
         assert np.array_equal(u.fixed_dofs, np.flatnonzero(on_boundary))
         low = ni.Field("v", m, element, fixed=lambda x: x[1] < 0.5)
         assert on_boundary[low.fixed_dofs].all()
-        assert ni.facets(u).facets.size == m.numbering.boundary.sum()
+        boundary = np.flatnonzero(m.numbering.boundary)  # a ghost cell's facets are its owner's
+        assert ni.facets(u).facets.size == m.numbering.owned[m.f2t[0, boundary]].sum() > 0
