@@ -1,5 +1,6 @@
 """Strong scaling and memory per rank of the distributed engine: under
-`mpirun -n R python benchmarks/distributed_scaling.py CASE LEVEL SOLVER [--local-meshes]`, each
+`mpirun -n R python benchmarks/distributed_scaling.py CASE LEVEL SOLVER [--local-meshes] [NAME=VALUE ...]`
+(the case's parameters, as `nitsche run --set NAME=VALUE`), each
 rank builds its part of the case's problem (nitsche.partition; with --local-meshes on the
 meshes of its own cells, nitsche.local_mesh) and Newton solves from zero; then every rank
 writes its piece of the solution (nitsche.pvtu), and rank 0 rebuilds the whole problem and
@@ -34,9 +35,9 @@ def peak_mib():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def main(name, level, solver, meshes="whole"):
+def main(name, level, solver, meshes="whole", sets=()):
     case = cases.get(name)
-    p = case.parameters({})
+    p = case.parameters(dict(s.split("=", 1) for s in sets))
     from petsc4py import PETSc  # (its memory counted in the baseline)
     PETSc.Log.begin()
     load = os.getloadavg()[0]
@@ -58,7 +59,8 @@ def main(name, level, solver, meshes="whole"):
     pieces, pieces_cpu = time.perf_counter() - t, time.process_time() - c
     after_pieces = peak_mib()
     stats = result.solver_stats
-    row = dict(case=name, level=level, unknowns=int(problem.unknowns), ranks=comm.size, meshes=meshes,
+    row = dict(case=name, level=level, sets=list(sets), unknowns=int(problem.unknowns), ranks=comm.size,
+               meshes=meshes,
                local_dofs=comm.gather(int(problem.local.ndofs), root=0),
                setup_seconds=comm.allreduce(setup, op=max_op()),
                newton_seconds=comm.allreduce(result.seconds, op=max_op()),
@@ -112,4 +114,4 @@ def max_op():
 
 if __name__ == "__main__":
     main(sys.argv[1], int(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "gamg",
-         "local" if "--local-meshes" in sys.argv[4:] else "whole")
+         "local" if "--local-meshes" in sys.argv[4:] else "whole", [a for a in sys.argv[4:] if "=" in a])

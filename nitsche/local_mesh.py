@@ -36,7 +36,7 @@ inner octahedron's split would need its own rule): their cases keep whole meshes
 import dataclasses
 
 import numpy as np
-from skfem import ElementVector, MeshHex1, MeshQuad1, MeshTri1
+from skfem import ElementVector, MeshHex1, MeshQuad1, MeshTet1, MeshTri1
 from skfem.element import ElementH1
 
 from . import partition
@@ -76,7 +76,7 @@ class Numbering:
 # the dimensions of the coarse entities that scikit-fem's uniform refinement gives a new
 # vertex (edge midpoints, face and cell centres), in the order it numbers them after the
 # coarse vertices
-NEW_VERTICES = {MeshTri1: (1,), MeshQuad1: (1, 2), MeshHex1: (1, 2, 3)}
+NEW_VERTICES = {MeshTri1: (1,), MeshQuad1: (1, 2), MeshTet1: (1,), MeshHex1: (1, 2, 3)}
 
 
 def entities(mesh):
@@ -98,9 +98,9 @@ def entities(mesh):
 
 def _check_type(mesh):
     if type(mesh) not in NEW_VERTICES:
-        raise ValueError(f"rank-local meshes are built for triangles, quadrilaterals and "
-                         f"hexahedra (MeshTri1, MeshQuad1, MeshHex1), not {type(mesh).__name__}: "
-                         "run without local meshes")
+        raise ValueError(f"rank-local meshes are built for triangles, quadrilaterals, tetrahedra "
+                         f"and hexahedra (MeshTri1, MeshQuad1, MeshTet1, MeshHex1), not "
+                         f"{type(mesh).__name__}: run without local meshes")
 
 
 def _parents(mesh, numbers):
@@ -135,9 +135,8 @@ def whole_numbering(mesh, coarse=None):
 
 
 def submesh(mesh, numbering, cells, ghosts=None):
-    """The mesh of the given cells of a whole (numbered) mesh and of the ghost cells (held
-    but not owned: Numbering.owned), its vertices numbered in the order of their global
-    numbers, with their Numbering."""
+    """The mesh of the given cells of a numbered mesh (whole, or a rank-local one) and of the
+    ghost cells (held but not owned: Numbering.owned), with their Numbering."""
     held = cells if ghosts is None else np.union1d(cells, ghosts)
     used = np.unique(mesh.t[:, held])
     sub = type(mesh)(mesh.p[:, used], np.searchsorted(used, mesh.t[:, held]))
@@ -169,7 +168,8 @@ def refined_numbered(mesh, numbering):
     """The local mesh refined once (scikit-fem's uniform refinement) and its Numbering from
     the coarse one (see the module docstring)."""
     _check_type(mesh)
-    fine, n, parent = (_refined_triangles if type(mesh) is MeshTri1 else _refined_tensor)(mesh, numbering)
+    refine = {MeshTri1: _refined_triangles, MeshTet1: _refined_tetrahedra}.get(type(mesh), _refined_tensor)
+    fine, n, parent = refine(mesh, numbering)
     if numbering.owned is not None:  # a child of an own cell is own, of a ghost a ghost
         n.owned = numbering.owned[parent]
     return fine, n
@@ -258,6 +258,66 @@ def _refined_tensor(mesh, numbering):
                            counts[1] if dim == 3 else None), parent
 
 
+# fine entities of dimension d inside one coarse entity of dimension D of a tetrahedral mesh
+# refined once: (d, D) -> count (a vertex or an edge's midpoint, an edge's halves, a face's
+# 3 inner edges and 4 parts, a cell's diagonal, 8 inner faces and 8 children)
+TETRAHEDRON_PARTS = {(0, 0): 1, (0, 1): 1, (0, 2): 0, (0, 3): 0, (1, 1): 2, (1, 2): 3, (1, 3): 1,
+                     (2, 2): 4, (2, 3): 8, (3, 3): 8}
+
+
+def _refined_tetrahedra(mesh, numbering):
+    """refined_numbered of a tetrahedral mesh (the new vertices: the edges' midpoints, NV + e).
+    A fine entity of dimension d lies in the coarse edge, face or cell P that its vertices'
+    coarse vertices span (of dimension D); it is numbered
+        sum_{d <= D' < D} k(d, D') N_D' + k(d, D) P + (the rank of its sorted global vertex
+        numbers among those of the fine d-entities in P)
+    (k: TETRAHEDRON_PARTS): every rank that holds P holds all of its parts (the cells around
+    it are refined whole), so the ranks agree on the ranks."""
+    g, N = numbering.numbers(3)
+    fine = uniformly_refined(mesh, 1)
+    build_facets(fine)
+    nv = mesh.p.shape[1]
+    span = np.vstack([np.tile(np.arange(nv), (2, 1)).T, mesh.edges.T]).T  # coarse vertices of each fine one
+    fine_g = np.concatenate([g[0], N[0] + g[1]]).astype(np.int64)
+    kinds = {1: mesh.edges, 2: mesh.facets, 3: mesh.t}
+
+    def numbered(ent, d):
+        """Global numbers of the fine d-entities (vertex lists (j, m)), and each one's
+        coarse entity: its dimension D and local number P."""
+        m = ent.shape[1]
+        s = np.sort(span[:, ent].reshape(-1, m), axis=0)
+        new = np.vstack([np.ones((1, m), bool), s[1:] != s[:-1]])
+        D = new.sum(axis=0) - 1  # the coarse vertices spanned, less one
+        P, gP = np.empty(m, np.int64), np.empty(m, np.int64)
+        for DD in np.unique(D):
+            sel = np.flatnonzero(D == DD)
+            vertices = s.T[sel][new.T[sel]].reshape(sel.size, DD + 1).T
+            P[sel] = vertices[0] if DD == 0 else _lookup(kinds[DD], vertices)
+            gP[sel] = g[DD][P[sel]]
+        # the rank within P: sort by (D, P's number, the sorted global vertex numbers)
+        keys = np.sort(fine_g[ent], axis=0)
+        order = np.lexsort(tuple(keys[::-1]) + (gP, D))
+        first = np.ones(m, bool)
+        first[1:] = (D[order][1:] != D[order][:-1]) | (gP[order][1:] != gP[order][:-1])
+        start = np.maximum.accumulate(np.where(first, np.arange(m), 0))
+        rank = np.empty(m, np.int64)
+        rank[order] = np.arange(m) - start
+        offset = np.array([sum(TETRAHEDRON_PARTS[d, D2] * N[D2] for D2 in range(d, DD))
+                           for DD in range(4)])
+        k = np.array([TETRAHEDRON_PARTS.get((d, DD), 0) for DD in range(4)])  # (D < d: none)
+        return offset[D] + k[D] * gP + rank, D, P
+
+    counts = [sum(TETRAHEDRON_PARTS[d, D] * N[D] for D in range(d, 4)) for d in range(4)]
+    vertices = numbered(np.arange(fine.p.shape[1])[None], 0)[0]
+    facets, D, P = numbered(fine.facets, 2)
+    boundary = np.zeros(facets.size, bool)
+    boundary[D == 2] = numbering.boundary[P[D == 2]]  # parts of a coarse facet
+    cells, _, parent = numbered(fine.t, 3)
+    edges = numbered(fine.edges, 1)[0]
+    return fine, Numbering(vertices, facets, cells, (counts[0], counts[2], counts[3]), boundary,
+                           _parents(mesh, g[0]), edges, counts[1]), parent
+
+
 def _pair_keys(pairs, n):
     """Integer keys of sorted vertex pairs (2, m): their order is the lexicographic one."""
     return pairs[0].astype(np.int64) * n + pairs[1]
@@ -296,7 +356,9 @@ def local_refined(mesh, times, comm, ghosts_for=None):
     mesh.numbering; ghosts_for=(other, to_this): also the cells (ghosts: Numbering.owned)
     that this rank's cells of the rank-local mesh `other`, mapped by to_this (points
     (dim_other, n) -> (dim, n)), may reach (`reached`), for an interface from `other` onto
-    this mesh (nitsche.measures.interface)."""
+    this mesh (nitsche.measures.interface): the coarse cells reached, refined along, and
+    after each refinement the children that are not reached dropped (the ghosts a layer of
+    the fine cells, not of the coarse ones)."""
     _check_type(mesh)
     if mesh.boundaries or mesh.subdomains:
         raise ValueError("rank-local meshes keep no named boundaries or subdomains: give "
@@ -311,11 +373,15 @@ def local_refined(mesh, times, comm, ghosts_for=None):
         mine = partition.cells(mesh)
     ghosts = None
     if ghosts_for is not None:
-        other, to_this = ghosts_for
-        ghosts = np.setdiff1d(np.flatnonzero(reached(mesh, other, to_this)), mine)
+        ghosts = np.setdiff1d(np.flatnonzero(reached(mesh, *ghosts_for)), mine)
     mesh, numbering = submesh(mesh, numbering, mine, ghosts)
     for _ in range(times - k):
         mesh, numbering = refined_numbered(mesh, numbering)
+        if ghosts_for is not None:  # the ghosts' children that no point reaches dropped
+            keep = numbering.owned | reached(mesh, *ghosts_for)
+            if not keep.all():
+                mesh, numbering = submesh(mesh, numbering, np.flatnonzero(numbering.owned),
+                                          np.flatnonzero(keep & ~numbering.owned))
     mesh.numbering = numbering
     return mesh
 

@@ -154,6 +154,40 @@ def test_rank_local_meshes_give_the_serial_energy_and_iterations(ranks, local_re
             (ranks == 1 or max(r["local_dofs"]) < 0.75 * whole.ndofs), (name, r["local_dofs"], whole.ndofs)
 
 
+# tetrahedra refined rank-locally (tests/mpi_local_tets.py, a 3D obstacle problem through the
+# API): degree -> level (P2: dofs on the edges, numbered by the edges' global numbers)
+TETS = {1: 3, 2: 2}
+
+
+@pytest.fixture(scope="module")
+def tets_reference():
+    from mpi_local_tets import obstacle_3d
+    out = {}
+    for degree, level in TETS.items():
+        problem = obstacle_3d(degree, level)
+        r = problem.minimize(solver="superlu")
+        out[degree] = dict(energy=r.energy, iterations=r.iterations, active_count=r.active_count,
+                           cells=problem.fields[0].mesh.nelements, ndofs=problem.ndofs)
+    return out
+
+
+@pytest.mark.parametrize("ranks", [1, 2, 3])
+def test_rank_local_tetrahedra_give_the_serial_energy_and_iterations(ranks, tets_reference):
+    """Tetrahedra refined by each rank from its cells of the partitioned coarse mesh (the
+    inner octahedron's diagonal chosen as on the whole mesh): P1 and P2 give the serial
+    energy, Newton iterations and active points; the ranks' own cells add up to the whole
+    mesh's and each holds a part of the dofs."""
+    for degree, level in TETS.items():
+        r = json.loads(mpirun(ranks, str(ROOT / "tests" / "mpi_local_tets.py"), str(degree),
+                              str(level)).strip().splitlines()[-1])
+        s = tets_reference[degree]
+        assert r["converged"] and r["ranks"] == ranks and r["local_meshes"] == 1, r
+        assert abs(r["energy"] - s["energy"]) <= 1e-10 * abs(s["energy"]), (degree, r, s)
+        assert (r["iterations"], r["active_count"]) == (s["iterations"], s["active_count"]), (r, s)
+        assert sum(r["mesh_cells"]) == s["cells"], (r, s)
+        assert ranks == 1 or max(r["local_dofs"]) < 0.75 * s["ndofs"], (r, s)
+
+
 def nested_dissection(run):
     """The ordering 'direct' asks of MUMPS (unknowns up to 10,000 here, for which MUMPS's
     automatic choice would be AMF or QAMD): PT-Scotch's on several ranks, else Scotch's;

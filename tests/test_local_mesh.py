@@ -6,8 +6,9 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from skfem import (ElementHex1, ElementHex2, ElementQuad1, ElementQuad2, ElementTriMorley, ElementTriP1,
-                   ElementTriP2, ElementVector, MeshHex, MeshQuad, MeshTri)
+from skfem import (ElementHex1, ElementHex2, ElementQuad1, ElementQuad2, ElementTetP1, ElementTetP2,
+                   ElementTriMorley, ElementTriP1,
+                   ElementTriP2, ElementVector, MeshHex, MeshQuad, MeshTet, MeshTri)
 
 import nitsche as ni
 from nitsche import partition
@@ -20,6 +21,7 @@ from nitsche.meshes import uniformly_refined
 TIMES = 3
 MESHES = {"triangles": lambda: MeshTri.init_symmetric().refined(2),
           "quadrilaterals": lambda: MeshQuad().refined(2),
+          "tetrahedra": lambda: MeshTet().refined(1),
           "hexahedra": lambda: MeshHex().refined(1)}
 
 
@@ -100,9 +102,10 @@ def test_parents_are_the_coarse_vertices_of_each_new_vertex(pieces):
         assert np.allclose(mean, m.p, rtol=0, atol=1e-15)
 
 
-ELEMENTS = {3: [ElementTriP1, ElementTriP2, lambda: ElementVector(ElementTriP2())],
-            4: [ElementQuad1, ElementQuad2, lambda: ElementVector(ElementQuad2())],
-            8: [ElementHex1, ElementHex2, lambda: ElementVector(ElementHex1())]}
+ELEMENTS = {"MeshTri1": [ElementTriP1, ElementTriP2, lambda: ElementVector(ElementTriP2())],
+            "MeshQuad1": [ElementQuad1, ElementQuad2, lambda: ElementVector(ElementQuad2())],
+            "MeshTet1": [ElementTetP1, ElementTetP2, lambda: ElementVector(ElementTetP2())],
+            "MeshHex1": [ElementHex1, ElementHex2, lambda: ElementVector(ElementHex1())]}
 
 
 @pytest.mark.parametrize("which", [0, 1, 2], ids=["P1/Q1", "P2/Q2", "vector"])
@@ -111,7 +114,7 @@ def test_global_dofs_are_one_numbering_of_the_whole_space(pieces, which):
     number shared by pieces is at the same point (second order: dofs on edges, facets and
     cells)."""
     parts, whole = pieces
-    element = ELEMENTS[whole.t.shape[0]][which]()
+    element = ELEMENTS[type(whole).__name__][which]()
     N = shared_basis(whole, element, DOFS).N
     at = {}
     for m in parts:
@@ -146,7 +149,7 @@ def test_fixed_boundaries_are_the_whole_meshes(pieces):
     boundary only, not those of the facets between pieces; a boundary measure likewise,
     those of its own cells only."""
     parts, whole = pieces
-    element = ELEMENTS[whole.t.shape[0]][0]()
+    element = ELEMENTS[type(whole).__name__][0]()
     for m in parts:
         on_boundary = np.zeros(m.p.shape[1], bool)
         on_boundary[m.facets[:, m.numbering.boundary].ravel()] = True
