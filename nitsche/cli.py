@@ -69,9 +69,11 @@ def parser():
                           "on rank 0 (the case's errors, report and figures, solution.png)")
     run.add_argument("--local-meshes", action="store_true",
                      help="under mpirun: each rank refines only its own cells of a partitioned "
-                          "coarse mesh (triangle meshes that the case refines with "
-                          "nitsche.meshes.refined; P1 fields for nested iteration); the outputs "
-                          "are those of --pieces-only")
+                          "coarse mesh (meshes of triangles, quadrilaterals, tetrahedra or "
+                          "hexahedra that the case refines with nitsche.meshes.refined; an "
+                          "interface's other body holds the cells its points reach as ghosts; "
+                          "P1/Q1 fields for nested iteration); the outputs are those of "
+                          "--pieces-only")
     st = sub.add_parser("study", help="uniform refinement study with nested iteration", add_help=False)
     _common(st)
     st.add_argument("--levels", type=int, default=4, help="number of levels")

@@ -40,7 +40,7 @@ from skfem import ElementVector, MeshHex1, MeshQuad1, MeshTet1, MeshTri1
 from skfem.element import ElementH1
 
 from . import partition
-from .measures import boundary_facets, build_facets
+from .measures import boundary_facets, build_edges, build_facets
 from .meshes import uniformly_refined
 
 CELLS_PER_RANK = 256  # the coarsest whole mesh partitioned has at least this many cells per rank
@@ -83,7 +83,7 @@ def entities(mesh):
     """conn[D][q] (k, n_D): the local numbers of the q-dimensional entities of each
     D-dimensional one (0 <= q <= D <= dim: vertices, edges (3D), facets, cells; conn[D][D]
     each entity itself)."""
-    build_facets(mesh)
+    _build(mesh)
     dim = mesh.dim()
     if dim == 2:
         conn = {1: {0: mesh.facets}, 2: {0: mesh.t, 1: mesh.t2f}}
@@ -94,6 +94,13 @@ def entities(mesh):
     for D in range(dim + 1):
         conn[D][D] = np.arange(mesh.p.shape[1] if D == 0 else conn[D][0].shape[1])[None]
     return conn
+
+
+def _build(mesh):
+    """The mesh's facets and (3D) edges, each by one integer sort (measures.build_facets,
+    build_edges)."""
+    build_facets(mesh)
+    build_edges(mesh)
 
 
 def _check_type(mesh):
@@ -124,7 +131,7 @@ def whole_numbering(mesh, coarse=None):
     """The Numbering of a whole mesh (its own numbers), parents from `coarse` when the mesh
     is coarse refined once (scikit-fem's order of the new vertices: NEW_VERTICES)."""
     _check_type(mesh)
-    build_facets(mesh)
+    _build(mesh)
     nv, nf, nc = mesh.p.shape[1], mesh.facets.shape[1], mesh.t.shape[1]
     boundary = np.zeros(nf, bool)
     boundary[boundary_facets(mesh)] = True
@@ -140,7 +147,7 @@ def submesh(mesh, numbering, cells, ghosts=None):
     held = cells if ghosts is None else np.union1d(cells, ghosts)
     used = np.unique(mesh.t[:, held])
     sub = type(mesh)(mesh.p[:, used], np.searchsorted(used, mesh.t[:, held]))
-    build_facets(sub)
+    _build(sub)
     gv = numbering.vertices
     facets = _lookup(gv[mesh.facets], gv[used][sub.facets])
     parents = None if numbering.parents is None else numbering.parents[:, used]
@@ -177,11 +184,11 @@ def refined_numbered(mesh, numbering):
 
 def _refined_triangles(mesh, numbering):
     """refined_numbered of a triangle mesh."""
-    build_facets(mesh)
+    _build(mesh)
     NV, NF, NC = numbering.counts
     nv = mesh.p.shape[1]
     fine = uniformly_refined(mesh, 1)
-    build_facets(fine)
+    _build(fine)
     gv = numbering.vertices
     ends = gv[mesh.facets]  # (2, coarse facets): their endpoints' global numbers
     vertices = np.concatenate([gv, NV + numbering.facets])
@@ -221,7 +228,7 @@ def _refined_tensor(mesh, numbering):
     conn = entities(mesh)
     g, N = numbering.numbers(dim)
     fine = uniformly_refined(mesh, 1)
-    build_facets(fine)
+    _build(fine)
     start = np.cumsum([0] + [conn[D][D].shape[1] for D in range(dim + 1)])
 
     def k(d, D):
@@ -275,7 +282,7 @@ def _refined_tetrahedra(mesh, numbering):
     it are refined whole), so the ranks agree on the ranks."""
     g, N = numbering.numbers(3)
     fine = uniformly_refined(mesh, 1)
-    build_facets(fine)
+    _build(fine)
     nv = mesh.p.shape[1]
     span = np.vstack([np.tile(np.arange(nv), (2, 1)).T, mesh.edges.T]).T  # coarse vertices of each fine one
     fine_g = np.concatenate([g[0], N[0] + g[1]]).astype(np.int64)

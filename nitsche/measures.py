@@ -17,7 +17,7 @@ import time
 import weakref
 
 import numpy as np
-from skfem import CellBasis, ElementVector, FacetBasis, Mesh
+from skfem import CellBasis, ElementVector, FacetBasis, MeshHex1
 from skfem.element import ElementH1
 from skfem.mapping import MappingAffine
 from skfem.quadrature import get_quadrature
@@ -47,28 +47,59 @@ def cell_diameters(mesh):
 
 
 def build_facets(mesh):
-    """Set mesh.facets and mesh.t2f as scikit-fem builds them (the sorted vertex tuples of
-    the cells' facets in lexicographic order, and each cell's facets), unless built: the
-    tuple (a_0 <= ... <= a_m) is the integer key sum_i a_i N^(m-i) (N vertices), so one
-    sort of integers (pattern.sort_with_order) replaces scikit-fem's np.unique over
-    columns: facet f is the f-th distinct key, first met at its first occurrence."""
-    if hasattr(mesh, "_facets") or hasattr(mesh, "_t2f") or \
-            type(mesh)._init_facets is not Mesh._init_facets:  # e.g. hexahedra: unsorted facets
+    """Set mesh.facets and mesh.t2f as scikit-fem builds them (the vertex tuples of the
+    cells' facets, sorted, in lexicographic order of the sorted tuples, and each cell's
+    facets; hexahedra keep each facet's vertices in the order of its first occurrence, as
+    scikit-fem does), unless built: `entities`, one sort of integers instead of
+    scikit-fem's np.unique over columns."""
+    if hasattr(mesh, "_facets") or hasattr(mesh, "_t2f"):
         return
-    local = mesh.elem.refdom.facets
-    columns = sorted_columns(np.hstack([mesh.t[ix] for ix in local]).astype(np.int64))
-    N = mesh.p.shape[1]
-    if float(N) ** columns.shape[0] >= 2.0 ** 63:  # keys would overflow: scikit-fem's way
+    built = entities(mesh.t, mesh.elem.refdom.facets, mesh.p.shape[1], isinstance(mesh, MeshHex1))
+    if built is not None:
+        mesh._facets, mesh._t2f = built
+
+
+def build_edges(mesh):
+    """Set mesh.edges and mesh.t2e of a 3D mesh as scikit-fem builds them (sorted vertex
+    pairs in lexicographic order, each cell's edges), unless built (`entities`)."""
+    if mesh.dim() != 3 or hasattr(mesh, "_edges") or hasattr(mesh, "_t2e"):
         return
-    key = columns[0]
-    for row in columns[1:]:
+    built = entities(mesh.t, mesh.elem.refdom.edges, mesh.p.shape[1])
+    if built is not None:
+        mesh._edges, mesh._t2e = built
+
+
+def entities(t, local, N, keep_order=False):
+    """(entities, t2x) of the cells t (k, n) of a mesh of N vertices: the entities made by
+    each cell's vertices local[i] (e.g. its facets), one per distinct vertex set, and each
+    cell's entities (len(local), n), numbered as scikit-fem's Mesh.build_entities numbers
+    them (in the lexicographic order of their sorted vertex tuples; each entity's vertices
+    sorted, or with keep_order as its first occurrence lists them); None where the keys
+    would overflow.  The tuple (a_0 <= ... <= a_m) is the integer key sum_i a_i N^(m-i),
+    so one sort of integers (pattern.sort_with_order) replaces np.unique over columns:
+    entity j is the j-th distinct key, first met at its first occurrence; where N^(m+1)
+    would overflow, (a_0, a_1) is first replaced by the rank of the pair among the distinct
+    pairs (one more sort; quadrilateral facets of meshes above 55,000 vertices)."""
+    indexing = np.hstack([t[ix] for ix in local]).astype(np.int64)
+    columns = sorted_columns(indexing)
+    rows = list(columns)
+    while float(N) ** len(rows) >= 2.0 ** 63 and len(rows) > 2:  # the first two rows as the
+        ordered, order = sort_with_order(rows[0] * N + rows[1])  # rank of their pair (the same order)
+        pair = np.empty(ordered.size, np.int64)
+        pair[order] = run_numbers(changes(ordered))
+        rows = [pair] + rows[2:]
+        N = max(N, int(pair.max(initial=0)) + 1)
+    if float(N) ** len(rows) >= 2.0 ** 63:  # keys would overflow: scikit-fem's way
+        return None
+    key = rows[0]
+    for row in rows[1:]:
         key = key * N + row
     ordered, order = sort_with_order(key)
     new = changes(ordered)
     inverse = np.empty(key.size, np.int64)
     inverse[order] = run_numbers(new)
-    mesh._facets = np.take(columns, order[new], axis=1).astype(mesh.t.dtype)  # (take: 5x columns[:, i])
-    mesh._t2f = inverse.reshape(len(local), mesh.t.shape[1])
+    chosen = np.take(indexing if keep_order else columns, order[new], axis=1)  # (take: 5x [:, i])
+    return chosen.astype(t.dtype), inverse.reshape(len(local), t.shape[1])
 
 
 def sorted_columns(a):

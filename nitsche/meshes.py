@@ -3,7 +3,7 @@ uniform refinement with the fast facet build."""
 import numpy as np
 
 from . import partition
-from .measures import build_facets
+from .measures import build_edges, build_facets
 
 
 def graded(length, fine, n_fine, growth):
@@ -22,8 +22,9 @@ def graded(length, fine, n_fine, growth):
 
 def refined(mesh, times, ghosts_for=None):
     """mesh refined uniformly `times` times, as scikit-fem's mesh.refined(times), with the
-    facets that each refinement step reads (t2f, facets) built by measures.build_facets
-    (one integer sort, the same arrays as scikit-fem's, about 4x faster); inside
+    facets and (3D) edges that each refinement step reads (t2f, facets, t2e, edges) built
+    by measures.build_facets and build_edges (one integer sort, the same arrays as
+    scikit-fem's, about 4x faster); inside
     partition.local(comm, meshes="local") this rank's cells of it only
     (local_mesh.local_refined), and with ghosts_for=(other, to_this) the cells that this
     rank's cells of the mesh `other` reach when mapped by to_this (points (dim_other, n) ->
@@ -40,5 +41,6 @@ def uniformly_refined(mesh, times):
     """The whole mesh refined `times` times (refined outside a partition of local meshes)."""
     for _ in range(times):
         build_facets(mesh)
+        build_edges(mesh)
         mesh = mesh.refined()
     return mesh

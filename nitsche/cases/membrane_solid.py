@@ -15,6 +15,9 @@ The cube is evaluated on the membrane's cells lifted to z = 1 (an interface meas
 the meshes are uniform n x n x n and m x m, n = n0 2^level, m = m0 2^level (m0 = n0 by
 default: they match on the top face and the interface uses the membrane's quadrature
 points; otherwise the supermesh of the membrane cells and the cube's top facets).
+Hexahedra and quadrilaterals: the level-0 grids refined `level` times (nitsche.meshes.refined:
+under `mpirun ... --local-meshes` each rank refines its own cells, the cube also the cells
+under the rank's membrane cells, as ghosts); tetrahedra: the tensor grid of level `level`.
 lap_h of bilinears on rectangles (and of linears on triangles) is 0, so lambda = load and
 the multiplier term is stable for every alpha0.
 """
