@@ -363,14 +363,21 @@ def reference_tabulation(field, orders, X):
     return R.reshape(1, nq, -1, ns * d)
 
 
+def empty_selection(mesh, facets):
+    """Whether a facet selection is empty: on every rank for a rank-local mesh (which may
+    hold none of the facets: collective there), else here."""
+    if hasattr(mesh, "numbering"):
+        return partition.everywhere(np.size(facets) == 0)
+    return np.size(facets) == 0
+
+
 class Facets(Measure):
     """Boundary facets of a mesh (those of this rank's cells inside nitsche.partition.local)."""
     kind = "facets"
 
     def __init__(self, mesh, facets, intorder=None, weight=None):
         facets = np.asarray(facets, dtype=np.int64)
-        local = hasattr(mesh, "numbering")  # a rank-local mesh may hold none of them
-        if partition.everywhere(facets.size == 0) if local else facets.size == 0:
+        if empty_selection(mesh, facets):
             raise ValueError("the facet selection is empty: check the boundary predicate or name")
         self.facets = facets[partition.owned(mesh, mesh.f2t[0, facets])]
         super().__init__(mesh, lambda e: FacetBasis(mesh, e, facets=self.facets,
@@ -599,7 +606,7 @@ def interface(field, where=None, to_other=None, intorder=None, other=None, pairi
     if other is not None and pairing != "points":
         from . import supermesh as sm
         mine = None if on_cells else np.asarray(select_facets(field.mesh, where), dtype=np.int64)
-        if mine is not None and np.size(mine) == 0:
+        if mine is not None and empty_selection(field.mesh, mine):
             raise ValueError("the facet selection is empty: check the boundary predicate or name")
         theirs = boundary_facets(other.mesh)
         cell_diameters(field.mesh)  # the mesh's, shared with every measure on it

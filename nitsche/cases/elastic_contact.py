@@ -31,7 +31,7 @@ from skfem import MeshTri, ElementTriP1, ElementTriP2, ElementVector, CellBasis
 import nitsche as ni
 from nitsche import partition
 from nitsche.case import Interval, OneOf, POISSON, POSITIVE, ParameterError
-from nitsche.meshes import graded
+from nitsche.meshes import graded, refined
 from nitsche.ops import dot, lame, sym_grad
 from nitsche.supermesh import interface_report
 
@@ -96,10 +96,12 @@ def elastic(E, nu):
 
 
 def _meshes(level, p):
-    if p.setup == "punch":
-        m1 = MeshTri.init_symmetric().refined(level + 2)
+    if p.setup == "punch":  # matching: rank-local under mpirun --local-meshes, body 2 holding
+        # the cells above the rank's contact facets of body 1 as ghosts
+        m1 = refined(MeshTri.init_symmetric(), level + 2)
         if p.matching:
-            m2 = MeshTri.init_symmetric().refined(level + 2).translated((0.0, 1.0))
+            m2 = refined(MeshTri.init_symmetric().translated((0.0, 1.0)), level + 2,
+                         ghosts_for=(m1, lambda x: x))
         else:
             n = 3 * 2 ** level
             m2 = MeshTri.init_tensor(np.linspace(0, 1, n + 1), np.linspace(1, 2, n + 1))
