@@ -79,7 +79,7 @@ class Numbering:
 NEW_VERTICES = {MeshTri1: (1,), MeshQuad1: (1, 2), MeshTet1: (1,), MeshHex1: (1, 2, 3)}
 
 
-def entities(mesh):
+def connectivity(mesh):
     """conn[D][q] (k, n_D): the local numbers of the q-dimensional entities of each
     D-dimensional one (0 <= q <= D <= dim: vertices, edges (3D), facets, cells; conn[D][D]
     each entity itself)."""
@@ -114,7 +114,7 @@ def _parents(mesh, numbers):
     """(2^dim, fine vertices): the global numbers of the coarse vertices whose mean each
     vertex of mesh refined once is (scikit-fem's order: the coarse vertices, then a vertex
     per entity of each dimension in NEW_VERTICES, in the entities' order)."""
-    conn, rows = entities(mesh), 2 ** mesh.dim()
+    conn, rows = connectivity(mesh), 2 ** mesh.dim()
     parts = [conn[D][0] for D in (0,) + NEW_VERTICES[type(mesh)]]
     return np.hstack([numbers[p[np.arange(rows) % p.shape[0]]] for p in parts]).astype(np.int64)
 
@@ -225,7 +225,7 @@ def _refined_tensor(mesh, numbering):
     hexahedron by its edge, an edge inside a face by its edge, inside a hexahedron by its
     face; a quadrilateral's inner facet by its facet)."""
     dim = mesh.dim()
-    conn = entities(mesh)
+    conn = connectivity(mesh)
     g, N = numbering.numbers(dim)
     fine = uniformly_refined(mesh, 1)
     _build(fine)
@@ -284,7 +284,7 @@ def _refined_tetrahedra(mesh, numbering):
     fine = uniformly_refined(mesh, 1)
     _build(fine)
     nv = mesh.p.shape[1]
-    span = np.vstack([np.tile(np.arange(nv), (2, 1)).T, mesh.edges.T]).T  # coarse vertices of each fine one
+    span = np.hstack([np.tile(np.arange(nv), (2, 1)), mesh.edges])  # coarse vertices of each fine one
     fine_g = np.concatenate([g[0], N[0] + g[1]]).astype(np.int64)
     kinds = {1: mesh.edges, 2: mesh.facets, 3: mesh.t}
 
