@@ -43,7 +43,8 @@ def main(degree, level):
     if problem.rank == 0:
         print(json.dumps(dict(energy=r.energy, iterations=r.iterations, converged=r.converged,
                               ranks=r.ranks, active_count=r.active_count, mesh_cells=cells,
-                              local_dofs=dofs, local_meshes=r.solver_stats["local_meshes"])),
+                              local_dofs=dofs, local_meshes=r.solver_stats["local_meshes"],
+                              reason=str(r.reason), stats=r.solver_stats)),
               flush=True)
 
 
