@@ -241,12 +241,11 @@ def _refined_tensor(mesh, numbering):
         col = np.arange(ent.shape[1])
         top, low = vd.argmax(axis=0), vd.argmin(axis=0)
         D, P = vd[top, col], (ent - start[vd])[top, col]
-        q, Q = vd[low, col], (ent - start[vd])[low, col]
+        Q = (ent - start[vd])[low, col]
         out = np.empty(ent.shape[1], np.int64)
         for DD in np.unique(D):
             s = D == DD
-            qd = DD - d
-            assert (q[s] == qd).all()
+            qd = DD - d  # the dimension of Q (see the docstring)
             rank = np.sum(g[qd][conn[DD][qd][:, P[s]]] < g[qd][Q[s]], axis=0)
             offset = sum(k(d, D2) * N[D2] for D2 in range(d, DD))
             out[s] = offset + k(d, DD) * g[DD][P[s]] + rank
@@ -323,11 +322,6 @@ def _refined_tetrahedra(mesh, numbering):
     edges = numbered(fine.edges, 1)[0]
     return fine, Numbering(vertices, facets, cells, (counts[0], counts[2], counts[3]), boundary,
                            _parents(mesh, g[0]), edges, counts[1]), parent
-
-
-def _pair_keys(pairs, n):
-    """Integer keys of sorted vertex pairs (2, m): their order is the lexicographic one."""
-    return pairs[0].astype(np.int64) * n + pairs[1]
 
 
 def _cells_of_facet_pairs(mesh):
