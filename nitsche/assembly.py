@@ -39,7 +39,7 @@ import scipy.sparse as sp
 from jax.extend.core import Literal
 
 from . import kernel_store
-from .device import empty, host, on_device
+from .device import empty, host, is_cpu, on_device
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
@@ -68,6 +68,12 @@ WORK_PER_CALL = 2 ** 19
 # from kernel_store), which the chains' coarse levels of small elements did not win back
 # (docs/performance.md, "Small terms' kernel calls (session 26)").
 RUNG_WORTH = 2 ** 20
+# A term whose element Hessians were non-zero on at most this share of its elements at its
+# last assembly is assembled in two passes (Assembler._assemble): the 'support' kernel
+# (energies, gradients, which Hessians can be non-zero: about half the cost of 'full'), then
+# 'full' on those elements only.  Two membranes at 130k, 21 % non-zero: 42 -> 21 + 11 ms of
+# kernels per Newton system, and a fifth of the scatter.
+SPARSE_HESSIAN = 0.25
 _COMPILED = {}
 _ALIVE = {}  # id -> object: an identity key stays valid while the object lives
 compile_seconds = [0.0]  # compilation time spent in this process
@@ -659,7 +665,7 @@ class Term:
         self._kernels[kind, chunk] = _cached(key, compiled)
         return self._kernels[kind, chunk]
 
-    def blocks(self, nel):
+    def blocks(self, nel, rungs=True):
         """(start, size) of the kernel calls over nel elements: calls of the large chunk while
         a whole one is left, then calls of the small one while a whole one is left, then one
         call of the small chunk, or of the least rung that holds the rest (last_call) where
@@ -673,10 +679,10 @@ class Term:
         rest = calls[-1][0] + calls[-1][1] if calls else 0
         if nel == rest and calls:
             return calls
-        rung = last_call(nel - rest, small)
+        rung = last_call(nel - rest, small) if rungs else small
         return calls + [(rest, rung if (small - rung) * self.element_work >= RUNG_WORTH else small)]
 
-    def calls(self, kind, x, elements=None):
+    def calls(self, kind, x, elements=None, rungs=True):
         """Apply a kernel to all elements (or to the given ones) for the global dof vector x,
         call by call: yields (the first element of the call, its outputs without padding).
         Over all elements a call passes the pieces of the per-element data stored on the
@@ -685,14 +691,16 @@ class Term:
         CPU without a copy); given elements, their rows are gathered on the host.  A call's
         outputs are handed out once the next call is dispatched (JAX dispatches
         asynchronously), so that the caller's work on them (the scatter into the Hessian's
-        data) and the next gather run beside that kernel."""
+        data) and the next gather run beside that kernel.  rungs=False: the last call is one
+        of the small chunk (no kernel shape of a rung that the whole term's calls may not
+        have loaded)."""
         dofs = self.field_dofs if elements is None else [d[elements] for d in self.field_dofs]
         nel = self.nel if elements is None else len(elements)
 
         def outputs(s, chunk, out):
             return s, [host(o)[:max(0, min(chunk, nel - s))] for o in out]
         before = None  # the call dispatched before: (start, chunk, its outputs)
-        for i, (s, chunk) in enumerate(self.blocks(nel)):
+        for i, (s, chunk) in enumerate(self.blocks(nel, rungs)):
             rows = None if elements is None else _pad(np.asarray(elements[s:s + chunk]), chunk)
             Ts = [a if a.shape[0] == 1 else a.parts[i] if rows is None else a.rows(rows) for a in self.tables]
             u = [_pad(x[d[s:s + chunk]], chunk) for d in dofs]  # the call's gather (host: x lives there)
@@ -840,6 +848,18 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
         return (jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw),
                 contract_hessian(Ts, Wd2w))
 
+    def support(*a):
+        """(energies, gradients, whether each element's Hessian can be non-zero: W d2w/dz2
+        non-zero at one of its points), without the Hessians' contraction."""
+        Ts, us, (W, x, n, h, alpha0, t) = split(a)
+        z = jets(Ts, us).reshape(chunk * nq, m)
+        px = points(W, x, n, h, alpha0, t)
+        w, dw = jax.vmap(value_and_first)(z, *px)
+        d2w = jax.vmap(jax.jacfwd(first))(z, *px)
+        Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
+        nonzero = jnp.any(W[..., None, None] * d2w.reshape(chunk, nq, m, m) != 0, axis=(1, 2, 3))
+        return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw), nonzero
+
     def jacobian(*a):
         """sqrt(W) dw/dz T at every point (w: e.g. a multiplier), shape (chunk, nq, dofs)."""
         Ts, us, (W, x, n, h, alpha0, t) = split(a)
@@ -855,7 +875,7 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
         out = jax.vmap(point_fn)(z, *points(W, x, n, h, alpha0, t))
         return tuple(o.reshape((chunk, nq) + o.shape[1:]) for o in out)
 
-    return {"energy": energy, "gradient": gradient, "full": full, "jacobian": jacobian,
+    return {"energy": energy, "gradient": gradient, "full": full, "support": support, "jacobian": jacobian,
             "values": values}[kind]
 
 
@@ -882,6 +902,7 @@ class Assembler:
                              if d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs))
                         for t in self.terms]
         self._quadratics = {}  # assembled on this pattern
+        self._hessian_share = {}  # id(term): the share of its elements with a non-zero Hessian
 
     def refresh(self, terms):
         """After the given terms changed their global dofs (an interface paired anew): their
@@ -962,22 +983,43 @@ class Assembler:
         (CSR data), kernel call by kernel call: each call's element Hessians are scattered
         as they come (Scatter.add_pieces: the sums of one scatter of all of them, bitwise),
         so that no array of all elements' Hessians is formed.  (The gradients are summed by
-        one bincount: per call, np.add.at took 10x its time for 25 MB less at 1M cells.)"""
+        one bincount: per call, np.add.at took 10x its time for 25 MB less at 1M cells.)
+
+        A term whose element Hessians were mostly exact zeros at its last assembly (at most
+        SPARSE_HESSIAN of them non-zero: a contact term off its active set where the
+        multiplier does not depend on u) is assembled in two passes: energies, gradients and
+        which elements have W d2w/dz2 non-zero at a point ('support'), then the Hessians of
+        those elements only; the others' are exact zeros, which add_pieces leaves out
+        anyway, so the sums are the same bit for bit.  (On the CPU only: the second pass
+        gathers its elements' data on the host, a transfer from an accelerator.)"""
         energies, gradients = np.empty(t.nel), None
+        share = self._hessian_share.get(id(t))
+        sparse = data is not None and share is not None and share <= SPARSE_HESSIAN and is_cpu()
+        kind = "gradient" if data is None else "support" if sparse else "full"
+        support = np.empty(t.nel, bool) if sparse else None
 
         def pieces():
             nonlocal gradients
-            for s, out in t.calls("gradient" if data is None else "full", x):
+            for s, out in t.calls(kind, x):
+                rows = slice(s, s + len(out[0]))
                 if gradients is None:
                     gradients = np.empty((t.nel,) + out[1].shape[1:])
-                energies[s:s + len(out[0])], gradients[s:s + len(out[1])] = out[0], out[1]
-                if data is not None:
-                    yield s, out[2]
-        if data is None:
+                energies[rows], gradients[rows] = out[0], out[1]
+                if sparse:
+                    support[rows] = out[2]
+                elif data is not None:
+                    yield rows, out[2]
+        if data is None or sparse:
             for _ in pieces():
                 pass
-        else:
-            scatter.add_pieces(data, pieces())
+        if sparse:
+            elements = np.flatnonzero(support)
+            count = scatter.add_pieces(data, ((elements[s:s + len(out[2])], out[2])
+                                              for s, out in t.calls("full", x, elements, rungs=False)))
+        elif data is not None:
+            count = scatter.add_pieces(data, pieces())
+        if data is not None:
+            self._hessian_share[id(t)] = count / max(t.nel, 1)
         return energies, gradients
 
     def gradient(self, x, terms=None):

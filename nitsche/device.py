@@ -37,6 +37,11 @@ def on_device(a, dtype=None):
     return jax.device_put(aligned(a, dtype))
 
 
+def is_cpu():
+    """Whether JAX computes on the CPU (host and device memory are one)."""
+    return jax.default_backend() == "cpu"
+
+
 def host(a):
     """A read-only NumPy view of a JAX array (on the CPU without a copy)."""
     return np.asarray(a)

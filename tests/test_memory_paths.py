@@ -39,7 +39,14 @@ def test_pieces_scatter_as_all_elements_at_once(name, level, degree, sets):
         scatter.add(expect, H)
         cuts = np.unique(np.concatenate([[0, t.nel], rng.integers(0, t.nel, 5)]))
         got = base.copy()
-        scatter.add_pieces(got, ((s, H[s:e]) for s, e in zip(cuts[:-1], cuts[1:])))
+        count = scatter.add_pieces(got, ((slice(s, e), H[s:e]) for s, e in zip(cuts[:-1], cuts[1:])))
+        np.testing.assert_array_equal(got, expect)
+        assert count == np.count_nonzero(H.reshape(t.nel, -1).any(axis=1))
+        # the non-zero elements only, given by their indices in pieces (the two-pass assembly)
+        rows = np.flatnonzero(H.reshape(t.nel, -1).any(axis=1))
+        got = base.copy()
+        cuts = np.unique(np.concatenate([[0, rows.size], rng.integers(0, rows.size, 4)]))
+        assert scatter.add_pieces(got, ((rows[s:e], H[rows[s:e]]) for s, e in zip(cuts[:-1], cuts[1:]))) == count
         np.testing.assert_array_equal(got, expect)
         strided.append(scatter.stride is not None)
     assert any(strided) == (name == "membrane-solid")
@@ -80,6 +87,16 @@ def test_evaluate_equals_the_all_elements_path(name, level, degree):
     E2, grad2 = a.gradient(x)
     assert E2 == E
     np.testing.assert_array_equal(grad2, grad)
+    # again with every term assembled in two passes (support, then the Hessians of the
+    # elements it flags): the same bits; a contact term's share of non-zero Hessians recorded
+    shares = {id(t): a._hessian_share[id(t)] for t in a.terms if not t.is_quadratic}
+    assert len(shares) >= 1 and (name != "two-membrane" or any(0 < v < 1 for v in shares.values()))
+    a._hessian_share.update({k: 0.0 for k in shares})
+    E3, grad3, data3 = a.evaluate(x)
+    assert E3 == E
+    np.testing.assert_array_equal(grad3, grad)
+    np.testing.assert_array_equal(data3, data)
+    assert {k: a._hessian_share[k] for k in shares} == shares
 
 
 @pytest.mark.parametrize("name, level", [("obstacle", 2), ("two-membrane", 1),
