@@ -282,36 +282,26 @@ class Scatter:
     def add_pieces(self, data, pieces):
         """data += the element matrices given piece by piece, (rows, H) with H (e, k, k) those
         of the elements `rows` (a slice or increasing indices; the pieces in increasing
-        order: a kernel's calls): the same sums in the same order as add() of all of them at
-        once (bitwise equal), without an array of all of them.  Element matrices that are
-        exact zeros are left out (adding +-0 to a sum changes no value).  Runs of one
-        column: summed into zeros entry by entry in element order, as add's one bincount,
-        then added to data.  Returns the number of non-zero element matrices."""
+        order: a kernel's calls), entry by entry in element order: the same sums in the same
+        order as add() of all of them at once (bitwise equal), without an array of all of
+        them.  Element matrices that are exact zeros are left out (adding +-0 to a sum
+        changes no value).  Returns the number of non-zero element matrices."""
         count = 0
-        total = np.zeros_like(data) if self.stride is None else None
         for rows, H in pieces:
             nonzero = H.reshape(len(H), -1).any(axis=1)
             count += int(np.count_nonzero(nonzero))
             if not nonzero.all():
                 rows, H = np.arange(self.P.shape[0])[rows][nonzero], H[nonzero]
-            if total is None:
-                self.add(data, H, rows)
-            else:
-                np.add.at(total, self.P[rows].ravel(), H.ravel())
-        if total is not None:
-            data += total
+            self.add(data, H, rows)
         return count
 
     def add(self, data, H, rows=0):
         """data += the element matrices H (e, k, k) of the elements `rows` (the first of e
-        consecutive ones, a slice or indices): by one bincount for all elements with kept
-        positions (runs of one column), else in chunks of elements."""
+        consecutive ones, a slice or indices), entry by entry in element order (np.add.at,
+        in chunks of elements: no index array of all of them)."""
         e, k = H.shape[:2]
         if isinstance(rows, (int, np.integer)):
             rows = slice(rows, rows + e)
-        if self.stride is None and e == len(self.P) and isinstance(rows, slice) and rows.start in (0, None):
-            data += np.bincount(self.P.ravel(), weights=H.ravel(), minlength=data.size)
-            return
         step = max(1, CHUNK // (k * k))
         for s in range(0, e, step):
             part = slice(rows.start + s, rows.start + min(s + step, e)) if isinstance(rows, slice) \
