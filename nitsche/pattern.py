@@ -291,7 +291,8 @@ class Scatter:
             nonzero = H.reshape(len(H), -1).any(axis=1)
             count += int(np.count_nonzero(nonzero))
             if not nonzero.all():
-                rows, H = np.arange(self.P.shape[0])[rows][nonzero], H[nonzero]
+                rows = np.flatnonzero(nonzero) + rows.start if isinstance(rows, slice) else rows[nonzero]
+                H = H[nonzero]
             self.add(data, H, rows)
         return count
 
