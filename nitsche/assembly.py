@@ -837,28 +837,27 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
         Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
         return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw)
 
-    def full(*a):
+    def second(a):
+        """(Ts, W, w, W dw/dz, W d2w/dz2) at the points of a call."""
         Ts, us, (W, x, n, h, alpha0, t) = split(a)
         z = jets(Ts, us).reshape(chunk * nq, m)
         px = points(W, x, n, h, alpha0, t)
         w, dw = jax.vmap(value_and_first)(z, *px)
         d2w = jax.vmap(jax.jacfwd(first))(z, *px)
-        Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
-        Wd2w = W[..., None, None] * d2w.reshape(chunk, nq, m, m)
+        return (Ts, W, w, W[..., None] * dw.reshape(chunk, nq, m),
+                W[..., None, None] * d2w.reshape(chunk, nq, m, m))
+
+    def full(*a):
+        Ts, W, w, Wdw, Wd2w = second(a)
         return (jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw),
                 contract_hessian(Ts, Wd2w))
 
     def support(*a):
         """(energies, gradients, whether each element's Hessian can be non-zero: W d2w/dz2
         non-zero at one of its points), without the Hessians' contraction."""
-        Ts, us, (W, x, n, h, alpha0, t) = split(a)
-        z = jets(Ts, us).reshape(chunk * nq, m)
-        px = points(W, x, n, h, alpha0, t)
-        w, dw = jax.vmap(value_and_first)(z, *px)
-        d2w = jax.vmap(jax.jacfwd(first))(z, *px)
-        Wdw = (W[..., None] * dw.reshape(chunk, nq, m))
-        nonzero = jnp.any(W[..., None, None] * d2w.reshape(chunk, nq, m, m) != 0, axis=(1, 2, 3))
-        return jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw), nonzero
+        Ts, W, w, Wdw, Wd2w = second(a)
+        return (jnp.sum(W * w.reshape(chunk, nq), axis=1), contract_gradient(Ts, Wdw),
+                jnp.any(Wd2w != 0, axis=(1, 2, 3)))
 
     def jacobian(*a):
         """sqrt(W) dw/dz T at every point (w: e.g. a multiplier), shape (chunk, nq, dofs)."""
