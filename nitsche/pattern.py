@@ -288,7 +288,7 @@ class Scatter:
         changes no value).  Returns the number of non-zero element matrices."""
         count = 0
         for rows, H in pieces:
-            nonzero = H.reshape(len(H), -1).any(axis=1)
+            nonzero = H.any(axis=tuple(range(1, H.ndim)))
             count += int(np.count_nonzero(nonzero))
             if not nonzero.all():
                 rows = np.flatnonzero(nonzero) + rows.start if isinstance(rows, slice) else rows[nonzero]

@@ -41,6 +41,7 @@ def test_pieces_scatter_as_all_elements_at_once(name, level, degree, sets):
         got = base.copy()
         count = scatter.add_pieces(got, ((slice(s, e), H[s:e]) for s, e in zip(cuts[:-1], cuts[1:])))
         np.testing.assert_array_equal(got, expect)
+        assert scatter.add_pieces(got, [(slice(0, 0), H[:0])]) == 0  # a rank without elements
         assert count == np.count_nonzero(H.reshape(t.nel, -1).any(axis=1))
         # the non-zero elements only, given by their indices in pieces (the two-pass assembly)
         rows = np.flatnonzero(H.reshape(t.nel, -1).any(axis=1))
