@@ -74,6 +74,9 @@ RUNG_WORTH = 2 ** 20
 # 'full' on those elements only.  Two membranes at 130k, 21 % non-zero: 42 -> 21 + 11 ms of
 # kernels per Newton system, and a fifth of the scatter.
 SPARSE_HESSIAN = 0.25
+# a pointwise Hessian d2w/dz2 whose eigenvalues are >= -ROUNDOFF_EIGENVALUE max|eigenvalue| is
+# positive semidefinite (Term.is_convex_quadratic)
+ROUNDOFF_EIGENVALUE = 1e-12
 _COMPILED = {}
 _ALIVE = {}  # id -> object: an identity key stays valid while the object lives
 compile_seconds = [0.0]  # compilation time spent in this process
@@ -370,6 +373,7 @@ class Term:
             raise ConstantDensity(f"{label} does not depend on any field")
         W = measure.weights if like is None else None
         self.nel, self.nq = W.shape if like is None else (like.nel, like.nq)
+        self.nonnegative_weights = bool(np.all(W >= 0)) if like is None else like.nonnegative_weights
         self.has_normal = measure.normals is not None if like is None else like.has_normal
         self.fields = [by_name[name] for name, _, _ in self.layout]
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
@@ -535,15 +539,13 @@ class Term:
         same jets."""
         other = copy.copy(self)
         other.pointwise, other._kernels, other.residual = pointwise, {}, False
-        for cached in ("_quadratic", "_coupling"):
+        for cached in ("_quadratic", "_coupling", "_convex", "_affine"):
             other.__dict__.pop(cached, None)
         return other
 
     def output_shape(self):
         """The shape of the density's value at a point."""
-        m = sum(mf for mf, _ in self.sizes)
-        vec = jnp.zeros(self.dim)
-        return jax.eval_shape(self._point_fn(), jnp.zeros(m), vec, vec, 0.1, 1.0, self._theta0()).shape
+        return jax.eval_shape(self._point_fn(), *self._sample()).shape
 
     @property
     def sizes(self):
@@ -609,14 +611,53 @@ class Term:
             return False
         if not hasattr(self, "_quadratic"):
             def quadratic():
-                m = sum(mf for mf, _ in self.sizes)
-                vec = jnp.zeros(self.dim)
                 second = jax.jacfwd(derivative(self._point_fn(), self.residual))
-                jaxpr = jax.make_jaxpr(second)(jnp.zeros(m), vec, vec, 0.1, 1.0, self._theta0())
-                return not _depends_on_first_input(jaxpr.jaxpr)
-            key = ("quadratic", fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
-            self._quadratic = _cached(key, lambda: _stored(key, quadratic))
+                return not _depends_on_first_input(jax.make_jaxpr(second)(*self._sample()).jaxpr)
+            self._quadratic = self._traced("quadratic", quadratic)
         return self._quadratic
+
+    @property
+    def is_convex_quadratic(self):
+        """True when J restricted to this term is a convex quadratic form: d2w/dz2 is one
+        positive semidefinite matrix D at every point (it depends on none of z, x, n, h,
+        alpha0: found from the computation graph; D's eigenvalues at one point, to round-off)
+        and every weight W >= 0, so that each element Hessian sum_q W_q T_q^T D T_q is
+        positive semidefinite."""
+        if self.residual or not self.is_quadratic or not self.nonnegative_weights:
+            return False
+        if not hasattr(self, "_convex"):
+            def convex():
+                second = jax.jacfwd(derivative(self._point_fn(), False))
+                sample = self._sample()
+                if any(_dependent_outputs(jax.make_jaxpr(second)(*sample).jaxpr, [True] * 5 + [False])):
+                    return False
+                D = np.asarray(second(*sample))
+                w = np.linalg.eigvalsh(0.5 * (D + D.T))
+                return bool(w.min() >= -ROUNDOFF_EIGENVALUE * np.abs(w).max())
+            self._convex = self._traced("convex", convex)
+        return self._convex
+
+    @property
+    def is_affine(self):
+        """True when the density (a scalar or a vector) is affine in z at every point: dw/dz
+        does not depend on z (found from the computation graph)."""
+        if not hasattr(self, "_affine"):
+            def affine():
+                first = jax.jacfwd(self._point_fn())
+                return not _depends_on_first_input(jax.make_jaxpr(first)(*self._sample()).jaxpr)
+            self._affine = self._traced("affine", affine)
+        return self._affine
+
+    def _sample(self):
+        """Arguments (z, x, n, h, alpha0, t) of the density at one point, for tracing."""
+        vec = jnp.zeros(self.dim)
+        return jnp.zeros(sum(mf for mf, _ in self.sizes)), vec, vec, 0.1, 1.0, self._theta0()
+
+    def _traced(self, what, compute):
+        """compute() of a property found by tracing the density, once per process and kept in
+        the kernel store (keyed by the density and its jets)."""
+        key = (what, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept))
+        return _cached(key, lambda: _stored(key, compute))
 
     @property
     def coupling(self):

@@ -112,7 +112,7 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
                 contact_measure=result.contact_measure, max_violation=result.max_violation,
                 feasible=result.feasible, seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
                 solver=result.solver, solver_stats=result.solver_stats, ranks=result.ranks,
-                parameters=vars(p),
+                minimum=result.minimum, parameters=vars(p),
                 alpha0_limits=problem.alpha0_limits, constraints=result.constraints,
                 reactions=problem.reactions(result.x) if engine else reactions(problem, result.x))
     if failure and reached < level:

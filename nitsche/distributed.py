@@ -133,6 +133,14 @@ class DistributedProblem:
     def __getattr__(self, name):
         return getattr(self.local, name)
 
+    @property
+    def convex(self):
+        """Problem.convex of every rank's part (one decision, taken by all ranks at once)."""
+        if "_convex" not in self.__dict__:
+            from mpi4py import MPI
+            self._convex = bool(self.comm.allreduce(int(self.local.convex), op=MPI.MIN))
+        return self._convex
+
     def summed(self, a):
         """sum over ranks of a (a number or an array), reduced on rank 0 and broadcast."""
         from mpi4py import MPI

@@ -200,6 +200,12 @@ class Projection(NamedTuple):
     def frictional(self):
         return self.kind in ("tresca", "coulomb")
 
+    @property
+    def convex(self):
+        """Whether phi is convex: the potential of the projection onto a convex set (grad phi
+        = P is monotone): R_+ (inequality), R (equality), R_+ x a ball (Tresca)."""
+        return self.potential is not None and self.kind in ("inequality", "equality", "tresca")
+
     def radius(self, P):
         """The radius of the tangential ball at the projected value P (frictional kinds)."""
         return self.threshold if self.kind == "tresca" else self.friction * P[..., 0]
@@ -295,6 +301,11 @@ class Constraint:
             c = jnp.concatenate([-P, theta * alpha * (P - lam)]) + nan_unless_finite(g, lam, alpha)
             return c, jnp.concatenate([g, lam])
         return pairs if self.residual else density
+
+    def gap_pointwise(self):
+        """g at a point, as a density of the constraint's jets."""
+        gap, gn = self.gap, self.gap_names
+        return lambda args: call(gap, gn, args)
 
     def values(self):
         """(g, lambda, alpha, P(lambda - g/alpha)) at a point: for reports, tractions and

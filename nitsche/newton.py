@@ -205,6 +205,9 @@ class Result:
     problem: object = None
     ranks: int = 1  # MPI ranks of the run (nitsche.distributed)
     shifts: list = field(default_factory=list)  # tau of each step taken on A + tau diag|A|
+    # how the stationary point is known to be a minimum: "J_h convex" (Problem.convex),
+    # "Hessian positive definite" (the solver's test), "not checked", or "" (not converged)
+    minimum: str = ""
 
     def field(self, name):
         """The dof vector of one field."""
@@ -250,9 +253,10 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     Each step solves H dx = -grad on the free dofs (to the relative accuracy `forcing`:
     exactly by a fresh factorization, or by CG preconditioned with an earlier one) and
     backtracks (Armijo) on J_h.  A stationary point is reported converged only if it is
-    a minimum: the Hessian on the free dofs positive definite there (the solver's
+    a minimum: J_h convex (Problem.convex, certified term by term: no factorization), or
+    else the Hessian on the free dofs positive definite there (the solver's
     is_positive_definite: CHOLMOD a Cholesky factor of that matrix, SuperLU the pivots
-    of its symmetric LU, AMG an LOBPCG estimate); minimum_check=False skips that check (a
+    of its symmetric LU, AMG an LOBPCG estimate); Result.minimum says which; minimum_check=False skips that check (a
     coarse level of a nested chain, only a starting guess for the next level, whose own
     check decides).  Never returns silently unconverged:
     see Result.converged; Result.feasible says whether a constraint looks infeasible.
@@ -382,14 +386,21 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     if shifts and not converged:
         reason += (f" (the Hessian of J_h was not positive definite at {len(shifts)} iterations, "
                    f"which took shifted steps)")
+    minimum = ""
     if converged and problem.symmetric and minimum_check:
         t = time.perf_counter()
-        if not lin.is_positive_definite(A):
+        if getattr(problem, "convex", False):
+            minimum = "J_h convex"
+        elif lin.is_positive_definite(A):
+            minimum = "Hessian positive definite"
+        else:
             converged, reason = False, (
                 f"stationary point that is not a minimum: the Hessian of J_h on the free dofs is "
                 f"not positive definite there ({reason}); start elsewhere (x0), or, if J_h should "
                 "be convex, check the supports and that alpha0 is below its stability limit")
         timings["minimum_check"] = time.perf_counter() - t
+    elif converged:
+        minimum = "not checked" if problem.symmetric else "not a minimization (a residual)"
     timings["compile"] = assembly.compile_seconds[0] - c0
     seconds = time.perf_counter() - t_start
     solver_name, solver_stats = lin.name, lin.stats()
@@ -405,7 +416,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
                       FeasibilityWarning)
     return Result(x=x, converged=converged, reason=reason, iterations=it, residuals=residuals,
                   energy=problem.energy(x), seconds=seconds, timings=timings, solver=solver_name,
-                  solver_stats=solver_stats,
+                  solver_stats=solver_stats, minimum=minimum,
                   constraints=report, problem=problem, ranks=getattr(problem, "ranks", 1), shifts=shifts,
                   active_count=sum(r["active_count"] for r in report.values()),
                   contact_measure=sum(r["contact_measure"] for r in report.values()

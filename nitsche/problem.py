@@ -159,12 +159,36 @@ class Problem:
                 raise ValueError(f"constraint '{c.name}': the energy has no cell term on the "
                                  "constraint's mesh to bound its multiplier")
             B = self._multiplier_term(c, like=t)  # the multiplier's jets only, alpha0 = 1
-            if not any(np.asarray(T).any() for T in B.T):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
+            if not reads_fields(B):  # D lambda = 0 (e.g. -T lap u - f with P1): B_T = 0
                 out[c.name] = np.full(t.nel, np.inf)
                 continue
             out[c.name] = local_limits(*multiplier_jacobian(B, c, x), t.cells, free,
                                        lambda cells: [cell_hessians(e, x, cells) for e in energy])
         return out
+
+    @property
+    def convex(self):
+        """Whether J_h is convex, certified term by term (once): every energy term a convex
+        quadratic form (Term.is_convex_quadratic), and every constraint a functional (theta =
+        1) with a convex potential phi whose multiplier does not depend on the fields (D lambda
+        = 0: a penalty, a given lambda, or e.g. f + lap u with P1 elements) and whose gap g is
+        affine in them (Term.is_affine): its density -alpha lambda^2 / 2 + alpha phi(lambda -
+        g/alpha) is then a constant plus a convex function of an affine map.  (Contact paired
+        on the current configuration is not certified.)  A stationary point of a convex J_h is
+        a minimum: Newton's minimum check then needs no factorization."""
+        if not hasattr(self, "_convex"):
+            self._convex = not self.sliding and all(t.is_convex_quadratic for t in self.energy_terms) \
+                and all(self._convex_constraint(c, t) for c, t in zip(self.constraints, self.constraint_terms))
+        return self._convex
+
+    def _convex_constraint(self, c, t):
+        """Whether constraint c's term t is convex in the fields (see convex)."""
+        if c.residual or not c.projection.convex:
+            return False
+        if c.multiplier is not None and any(k in self.by_name for k in c.multiplier_names) \
+                and reads_fields(self._multiplier_term(c, like=t)):
+            return False
+        return t.with_pointwise(c.gap_pointwise()).is_affine
 
     def _multiplier_on_own_mesh(self, c):
         return all(self.by_name[k].mesh is c.on.mesh for k in c.multiplier_names if k in self.by_name)
@@ -609,6 +633,12 @@ def constraint_summary(c, pieces):
                    peak_tangential_traction=max(p["peak_tangential_traction"] for p in held),
                    total_tangential_traction=total("total_tangential_traction").tolist())
     return rep
+
+
+def reads_fields(term):
+    """Whether a term's density can depend on the dofs of its elements: some tabulation of
+    the jets it reads is non-zero (not so for the second derivatives of P1 elements)."""
+    return any(np.asarray(T).any() for T in term.T)
 
 
 def cell_hessians(term, x, cells):

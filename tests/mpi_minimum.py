@@ -10,7 +10,11 @@ negative eigenvalues of the whole problem's Hessian at the result (dense, on ran
 - `well`: the same from u = 0.2, converged to the well u = 1 (positive definite);
 - `saddle-redundant`, `well-redundant`: the same with -pc_type redundant (PETSc's LU on
   every rank: LOBPCG, with or without MUMPS);
-- `obstacle`: the shipped case at level 2 with GAMG (a preconditioner that is not exact)."""
+- `obstacle`: the shipped case at level 2, P2 elements (lambda = f + lap u depends on u, so
+  J_h is not certified convex and the Hessian is checked), with GAMG (a preconditioner that
+  is not exact);
+- `obstacle-p1`: the same with P1 elements, whose J_h is certified convex on every rank
+  (Problem.convex): no eigenvalue estimate."""
 import json
 
 import numpy as np
@@ -40,11 +44,13 @@ def spectrum(problem, x):
 def main():
     comm = MPI.COMM_WORLD
     obstacle = cases.get("obstacle")
-    make_obstacle = lambda: obstacle.problem(2, 1, obstacle.parameters({}))  # noqa: E731
+    make_obstacle = lambda: obstacle.problem(2, 2, obstacle.parameters({}))  # noqa: E731
+    make_obstacle_p1 = lambda: obstacle.problem(2, 1, obstacle.parameters({}))  # noqa: E731
     runs = [("saddle", double_well, "direct", 0.0, []), ("well", double_well, "direct", 0.2, []),
             ("saddle-redundant", double_well, "direct", 0.0, ["-pc_type", "redundant"]),
             ("well-redundant", double_well, "direct", 0.2, ["-pc_type", "redundant"]),
-            ("obstacle", make_obstacle, "gamg", None, [])]
+            ("obstacle", make_obstacle, "gamg", None, []),
+            ("obstacle-p1", make_obstacle_p1, "gamg", None, [])]
     for name, make, solver, start, options in runs:
         set_petsc_options(options)
         dp = DistributedProblem.build(make, comm)
@@ -55,7 +61,7 @@ def main():
             stats = r.solver_stats
             lowest, negative = spectrum(make(), r.x)
             print(json.dumps(dict(problem=name, ranks=r.ranks, converged=r.converged,
-                                  reason=r.reason, estimates=stats["lobpcg_estimates"],
+                                  reason=r.reason, minimum=r.minimum, estimates=stats["lobpcg_estimates"],
                                   steps=stats["lobpcg_steps"],
                                   negative_pivots=stats["negative_pivots"],
                                   mumps=PETSc.Sys.hasExternalPackage("mumps"),

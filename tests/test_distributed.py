@@ -459,10 +459,11 @@ def test_an_indefinite_hessian_takes_the_serial_convexified_steps(ranks):
 def test_the_minimum_check_runs_on_distributed_vectors(ranks):
     """The minimum check at convergence (nothing gathered): fails at a saddle of a double
     well whose Hessian has a positive diagonal but a negative eigenvalue (as the serial
-    check does), passes at the well and on obstacle (GAMG).  With MUMPS ('direct') the
+    check does), passes at the well and on the P2 obstacle (GAMG).  With MUMPS ('direct') the
     negative pivots of its L D L^T are the Hessian's negative eigenvalues (Sylvester's
     law); LOBPCG's estimates (GAMG, PCREDUNDANT) bound the smallest eigenvalue from above,
-    <= 0 at the saddle and within 1e-6 of it at minima."""
+    <= 0 at the saddle and within 1e-6 of it at minima; P1 obstacle's J_h is certified convex
+    by all ranks at once, without an estimate."""
     lines = mpirun(ranks, str(ROOT / "tests" / "mpi_minimum.py"))
     runs = {r["problem"]: r for r in map(json.loads, lines.strip().splitlines())}
     u = ni.Field("u", MeshTri().refined(3), ElementTriP1())
@@ -481,11 +482,15 @@ def test_the_minimum_check_runs_on_distributed_vectors(ranks):
     for name in ("well", "well-redundant", "obstacle"):
         r = runs[name]
         assert r["converged"] and r["lowest"] > 0 and r["negative"] == 0, r
+        assert r["minimum"] == "Hessian positive definite", r
         if mumps and name == "well":
             assert r["negative_pivots"][-1] == 0 and not r["estimates"], r
         else:
             estimate, lowest = r["estimates"][-1], r["lowest"]
             assert lowest - 1e-12 * lowest <= estimate <= lowest + 1e-6 * lowest, r
+    convex = runs["obstacle-p1"]  # certified convex on every rank: no estimate
+    assert convex["converged"] and convex["minimum"] == "J_h convex" and not convex["estimates"], convex
+    assert convex["lowest"] > 0 and convex["negative"] == 0, convex
     assert all(r["gathered_numbers"] == 0 for r in runs.values()), runs
 
 

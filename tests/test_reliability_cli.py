@@ -324,6 +324,7 @@ def test_a_nested_failure_returns_the_coarser_problem_built_again(monkeypatch):
     assert np.isclose(problem.energy(result.x), result.energy, rtol=1e-13, atol=0)
     # level 1 was a coarse level (COARSE_RTOL, unchecked): solved on to 1e-10 and checked
     assert result.converged and result.residuals[-1] <= 1e-10 and result.timings["minimum_check"] > 0
+    assert result.minimum == "J_h convex"  # P1 obstacle: certified, no factorization for it
 
 
 def test_the_coarser_levels_of_a_nested_chain_are_solved_to_the_coarse_tolerance_only():

@@ -142,6 +142,61 @@ def test_a_semidefinite_change_of_the_factored_matrix_needs_no_factorization():
     assert not semidefinite_difference(sp.eye(n, format="csc"), F)  # another pattern
 
 
+def obstacle_problem(element=ElementTriP1(), energy=None, gap=None, multiplier="lap", theta=1,
+                     measure=None):
+    """A membrane over the obstacle psi = -0.05 under the load f = -1 (P1: J_h convex)."""
+    u = ni.Field("u", MeshTri().refined(3), element, fixed="boundary")
+    energy = energy or (lambda u: 0.5 * dot(grad(u), grad(u)) + u)
+    lam = {"lap": lambda u: -1.0 - lap(u), "none": None, "value": lambda u: -u.value}[multiplier]
+    gap = gap or (lambda u: u + 0.05)
+    contact = ni.Inequality(gap, lam, ni.Scaling(0.1, 2), measure or ni.cells(u), theta=theta) \
+        if lam is not None else ni.Penalty(gap, ni.Scaling(0.1, 2), measure or ni.cells(u))
+    return ni.Problem([u], energy, [contact], alpha0_limits={"contact": np.inf})
+
+
+def test_convexity_is_certified_term_by_term():
+    """Problem.convex: convex quadratic energy terms (d2w/dz2 one positive semidefinite
+    matrix, weights >= 0) and constraints with D lambda = 0 and an affine gap.  Anything it
+    cannot show is not certified (and then the Hessian is checked)."""
+    assert obstacle_problem().convex  # lambda = -1 - lap u, lap of P1 = 0
+    assert obstacle_problem(multiplier="none").convex  # a penalty
+    assert not obstacle_problem(ElementTriP2()).convex  # lap of P2 depends on u
+    assert not obstacle_problem(multiplier="value").convex  # D lambda != 0
+    assert not obstacle_problem(gap=lambda u: u + 0.05 - u.value ** 2).convex  # g not affine
+    assert not obstacle_problem(theta=0).convex  # a residual
+    assert not obstacle_problem(energy=lambda u: 0.5 * dot(grad(u), grad(u)) - 2 * u.value ** 2).convex
+    assert not obstacle_problem(energy=lambda u: 0.5 * dot(grad(u), grad(u)) + u.value ** 4).convex
+    # a coefficient varying in x: D differs from point to point (not shown, conservatively)
+    assert not obstacle_problem(energy=lambda u, x: (1 + x[0] ** 2) * dot(grad(u), grad(u))).convex
+    # a quadrature with a negative weight: element Hessians need not be semidefinite
+    u = ni.Field("u", MeshTri().refined(2), ElementTriP1(), fixed="boundary")
+    X = np.array([[1 / 3, 0.2, 0.6, 0.2], [1 / 3, 0.2, 0.2, 0.6]])
+    negative = ni.measures.Cells(u.mesh, quadrature=(X, np.array([-27, 25, 25, 25]) / 96))
+    negative.attach(u)
+    assert not ni.Problem([u], ni.Integral(lambda u: dot(grad(u), grad(u)), negative)).convex
+    assert ni.Problem([u], ni.Integral(lambda u: dot(grad(u), grad(u)), ni.cells(u))).convex
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_convex_j_h_is_a_minimum_without_the_hessians_test(solver, monkeypatch):
+    """A converged run of a certified convex J_h says so (Result.minimum) and takes no
+    factorization for it; the same run with the certificate withheld tests the Hessian,
+    which is indeed positive definite there (dense eigenvalues), and reaches the same x."""
+    p = obstacle_problem()
+    r = p.minimize(solver=solver)
+    assert r.converged and r.minimum == "J_h convex" and r.constraints["contact"]["active_count"] > 0
+    H = p.hessian(r.x)[p.free][:, p.free].toarray()
+    assert np.linalg.eigvalsh(H)[0] > 0
+    monkeypatch.setattr(ni.Problem, "convex", property(lambda self: False))
+    q = obstacle_problem()
+    checked = q.minimize(solver=solver)
+    assert checked.converged and checked.minimum == "Hessian positive definite"
+    assert np.array_equal(checked.x, r.x) and checked.iterations == r.iterations
+    if solver == "cholmod":
+        assert checked.solver_stats["factorizations"] >= r.solver_stats["factorizations"]
+    assert p.minimize(minimum_check=False).minimum == "not checked"
+
+
 # -- 3. the solution is the initial guess ------------------------------------------------
 
 def test_a_problem_solved_by_its_initial_guess_converges():
