@@ -73,9 +73,10 @@ class DofBasis(CellBasis):
     def dx(self):
         return np.abs(self.mapping.detDF(self.X, tind=self.tind)) * np.broadcast_to(self.W, (self.nelems, 1))
 
-    @property
+    @cached_property
     def value_shape(self):
-        """Shape of a basis function's value at a point (from one cell of the mesh)."""
+        """Shape of a basis function's value at a point (from one cell of the mesh; kept: the
+        mesh's mapping, which it reads for all cells, may have been released since)."""
         return np.asarray(self.elem.gbasis(self.mapping, self.X, 0, tind=np.zeros(1, dtype=np.int64))[0]).shape[:-2]
 
 
