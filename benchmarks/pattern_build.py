@@ -20,7 +20,9 @@ import sys
 import time
 import tracemalloc
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+if "OPENBLAS_NUM_THREADS" not in os.environ:  # the library's default (nitsche/__init__)
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    os.environ["NITSCHE_BLAS_DEFAULTED"] = "1"  # numeric factorizations on the cores (nitsche.threads)
 
 import numpy as np  # noqa: E402
 

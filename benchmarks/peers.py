@@ -45,8 +45,11 @@ Peers are optional (`pip install -e .[bench]`); a peer that is not installed is 
 import os
 
 # every code gets the BLAS setting the library uses (CHOLMOD's OpenBLAS single-threaded:
-# threaded triangular solves were 6x slower on 2 cores); set before any BLAS is loaded
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# threaded triangular solves were 6x slower on 2 cores; the numeric factorizations on the
+# cores, see Cholesky); set before any BLAS is loaded
+if "OPENBLAS_NUM_THREADS" not in os.environ:  # the library's default (nitsche/__init__)
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    os.environ["NITSCHE_BLAS_DEFAULTED"] = "1"  # numeric factorizations on the cores (nitsche.threads)
 
 import argparse  # noqa: E402
 import inspect  # noqa: E402
@@ -58,6 +61,7 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
@@ -198,8 +202,18 @@ class Cholesky:
         A = A.tocsc()
         if self.symbolic is None:
             self.symbolic = self.analyze(A)
-        self.symbolic.cholesky_inplace(A)
+        with factorization_threads():
+            self.symbolic.cholesky_inplace(A)
         return self.symbolic(b)
+
+
+def factorization_threads():
+    """BLAS on the process's cores for a numeric factorization, as the library runs its own
+    (nitsche.threads' rule where the library chose the BLAS threads, restated here: the
+    linear code does not import nitsche, which would load JAX)."""
+    threads = int(os.environ.get("NITSCHE_FACTOR_THREADS", "0")) or (
+        len(os.sched_getaffinity(0)) if os.environ.get("NITSCHE_BLAS_DEFAULTED") == "1" else 1)
+    return threadpool_limits(limits=threads, user_api="blas")
 
 
 # -- the codes (each runs in a subprocess: `peers.py --worker CODE PROBLEM ...`) ------

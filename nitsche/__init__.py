@@ -10,8 +10,11 @@ import warnings
 
 # CHOLMOD's BLAS (Debian's OpenBLAS where installed) single-threaded unless the user says
 # otherwise: on 2 cores its threads made every triangular solve of the factor-reusing CG
-# 6x slower (spinning against JAX's threads) and the factorization only 10 % faster.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# 6x slower (spinning against JAX's threads); the numeric factorizations alone take the
+# cores (nitsche.threads).
+if "OPENBLAS_NUM_THREADS" not in os.environ:
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    os.environ["NITSCHE_BLAS_DEFAULTED"] = "1"  # (nitsche.threads.DEFAULTED; kept by child processes)
 
 import jax  # noqa: E402
 

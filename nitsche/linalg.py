@@ -17,6 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from . import threads
 from .ordering import nested_dissection
 from .pattern import index_type
 
@@ -122,7 +123,9 @@ class Cholmod:
             if self.factor is None:
                 self._analyze(A)
             self.factored = None
-            self.factor.cholesky_inplace(self._given(A))
+            given = self._given(A)
+            with threads.factorization():
+                self.factor.cholesky_inplace(given)
         except CholmodNotPositiveDefiniteError as e:
             raise IndefiniteHessian(str(e))
         if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
@@ -615,7 +618,8 @@ def describe():
         blas = "OpenBLAS" if any("openblas" in lib for lib in libs) else "reference BLAS"
     except OSError:
         blas = "BLAS unknown"
-    return f"CHOLMOD ({blas}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')})"
+    return (f"CHOLMOD ({blas}, OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}, "
+            f"factorizations on {threads.factorization_threads()} threads)")
 
 
 SOLVERS = {"cholmod": Cholmod, "superlu": SuperLU, "amg": AMGCG, "gmres": GMRES}
