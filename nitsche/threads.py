@@ -6,10 +6,13 @@ solve of the factor-reusing CG several times slower.  A numeric factorization is
 supernodal updates, which threads do speed up (a 1M-unknown 2D Laplacian: 2.8-3.1 s on
 one thread, 1.6 s on two), so `factorization()` gives it the process's cores (shared
 among the MPI ranks on the node), or NITSCHE_FACTOR_THREADS of them; where the user chose
-OPENBLAS_NUM_THREADS, that stays.
+OPENBLAS_NUM_THREADS, that stays.  The threads change only while the process runs no other
+Python thread (e.g. nitsche.study's Ahead, building the finest level beside the coarser
+solves), which could be inside a BLAS call of the same library meanwhile.
 """
 import contextlib
 import os
+import threading
 
 from threadpoolctl import ThreadpoolController
 
@@ -45,7 +48,7 @@ def local_ranks():
 def factorization():
     """A context in which BLAS runs on factorization_threads() threads."""
     threads = factorization_threads()
-    if threads == 1:
+    if threads == 1 or threading.active_count() > 1:
         return contextlib.nullcontext()
     if not _controller:
         _controller.append(ThreadpoolController())  # (the loaded libraries: scanned once)

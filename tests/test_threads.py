@@ -1,4 +1,6 @@
 """BLAS threads: one for the solves, the cores for the numeric factorizations."""
+import threading
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -45,6 +47,17 @@ def test_the_factorizations_context_sets_the_blas_threads_and_puts_them_back(mon
     monkeypatch.setenv("NITSCHE_FACTOR_THREADS", "1")
     with threads.factorization():
         assert blas_threads() == before
+    # while another Python thread runs (it might be inside a BLAS call), nothing changes
+    monkeypatch.setenv("NITSCHE_FACTOR_THREADS", "2")
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+    try:
+        with threads.factorization():
+            assert blas_threads() == before
+    finally:
+        release.set()
+        other.join()
 
 
 @pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
