@@ -26,6 +26,7 @@ def test_run_writes_result_vtu_and_png(tmp_path, capsys):
     assert RESULT_KEYS <= set(data)
     assert data["converged"] and data["case"] == "obstacle" and data["degree"] == 2
     assert data["parameters"]["alpha0"] == 0.004
+    assert data["minimum"] == "Hessian positive definite"  # P2: lap u reads u, not certified convex
     assert (out / "solution.png").stat().st_size > 1000
     import meshio
     m = meshio.read(out / "solution.vtu")
