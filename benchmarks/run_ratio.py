@@ -28,9 +28,6 @@ import sys
 import tempfile
 import time
 
-if "OPENBLAS_NUM_THREADS" not in os.environ:  # the library's default (nitsche/__init__)
-    os.environ["OPENBLAS_NUM_THREADS"] = "1"
-    os.environ["NITSCHE_BLAS_DEFAULTED"] = "1"  # numeric factorizations on the cores (nitsche.threads)
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 sys.path.insert(0, HERE)

@@ -11,13 +11,13 @@ Python thread (e.g. nitsche.study's Ahead, building the finest level beside the 
 solves), which could be inside a BLAS call of the same library meanwhile.
 """
 import contextlib
+import functools
 import os
 import threading
 
 from threadpoolctl import ThreadpoolController
 
 DEFAULTED = "NITSCHE_BLAS_DEFAULTED"  # set where the library chose OPENBLAS_NUM_THREADS=1
-_controller = []
 
 
 def factorization_threads():
@@ -50,6 +50,10 @@ def factorization():
     threads = factorization_threads()
     if threads == 1 or threading.active_count() > 1:
         return contextlib.nullcontext()
-    if not _controller:
-        _controller.append(ThreadpoolController())  # (the loaded libraries: scanned once)
-    return _controller[0].limit(limits=threads, user_api="blas")
+    return controller().limit(limits=threads, user_api="blas")
+
+
+@functools.cache
+def controller():
+    """threadpoolctl's view of the loaded BLAS libraries (scanned once)."""
+    return ThreadpoolController()
