@@ -64,6 +64,12 @@ class Cholmod:
     low-rank change); otherwise, or when CG needed more than half of them, it is
     factored anew.  rtol=0 asks for a direct solve.
 
+    keep_factored: a copy of the factored matrix's values is kept, for is_positive_definite's
+    test without a new factorization and solve's test for that same matrix (a direct
+    solve); a caller that will not ask is_positive_definite (newton where J_h is
+    certified convex) sets it False, and saves the copy (one value per pattern entry:
+    56 MB for the two membranes at 522k unknowns).
+
     The fill-reducing ordering: CHOLMOD's `ordering` method, or, with geometric=True and
     the free dofs' coordinates from prepare(problem), a geometric nested dissection
     (nitsche.ordering): the factor is then that of P A P^T (its lower triangle, read from
@@ -72,6 +78,7 @@ class Cholmod:
 
     def __init__(self, reuse_iterations=25, ordering="default", geometric=False):
         self.factor = self.factored = None
+        self.keep_factored = True
         self.ordering, self.geometric = ordering, geometric
         self.points = self.perm = None  # the free dofs' coordinates; the nested dissection's order
         self.reordered = None  # with perm: P A P^T's lower triangle, its values positions in A.data
@@ -130,7 +137,7 @@ class Cholmod:
             raise IndefiniteHessian(str(e))
         if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
             raise IndefiniteHessian("the LDL^T factorization has a non-positive pivot")
-        self.factored = kept_values(A)
+        self.factored = kept_values(A) if self.keep_factored else None
         self.factorizations += 1
         self.stale = False
 

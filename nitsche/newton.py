@@ -268,6 +268,9 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
     if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
         lin.prepare(problem)
+    convex = problem.symmetric and getattr(problem, "convex", False)
+    if hasattr(lin, "keep_factored"):  # a certified convex J_h needs no positive definite test
+        lin.keep_factored = not convex
     x = problem.initial(x0)
     if lift and x0 is not None and problem.moved(x0) is not None:
         t = time.perf_counter()
@@ -389,7 +392,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     minimum = ""
     if converged and problem.symmetric and minimum_check:
         t = time.perf_counter()
-        if getattr(problem, "convex", False):
+        if convex:
             minimum = "J_h convex"
         elif lin.is_positive_definite(A):
             minimum = "Hessian positive definite"
