@@ -108,8 +108,9 @@ def test_the_free_block_in_int32_is_the_free_rows_and_columns(name, level):
     problem = problem_of(name, level)
     x = problem.initial(None) + 1e-2 * np.random.default_rng(5).standard_normal(problem.ndofs)
     _, _, data = problem.assembler.evaluate(x)
-    A = problem._free_matrix(data)
-    full = problem.assembler.matrix(data)[problem.free][:, problem.free]
+    full = problem.assembler.matrix(data.copy())[problem.free][:, problem.free]
+    A = problem._free_matrix(data)  # (data compacted in place: A's values are a view of it)
+    assert np.shares_memory(A.data, data)
     assert problem._kept.dtype == bool and problem._ff_indptr.dtype == np.int32
     assert A.indices.dtype == np.int32 and A.indptr.dtype == np.int32
     assert np.array_equal(A.indptr, full.indptr) and np.array_equal(A.indices, full.indices)
@@ -203,3 +204,59 @@ def test_a_quadratic_term_releases_its_data_and_gets_them_back_equal(name, level
     assert E2 == E
     np.testing.assert_array_equal(grad2, grad)
     np.testing.assert_array_equal(data2, data)
+
+
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+@pytest.mark.parametrize("degree, convex", [(1, True), (2, False)])
+def test_the_factored_copy_is_kept_only_for_the_positive_definite_test(degree, convex):
+    """Newton keeps no copy of the factored matrix where J_h is certified convex (no test of
+    the Hessian reads it: the P1 obstacle) and keeps it where the Hessian is tested (P2);
+    the run reaches what a solver that keeps the copy reaches, in as many iterations."""
+    class Keeping(Cholmod):
+        keep_factored = property(lambda self: True, lambda self, value: None)
+    problem = problem_of("obstacle", 2, degree)
+    assert problem.convex == convex
+    lin = Cholmod()
+    result = problem.minimize(solver=lin)
+    assert result.converged and result.minimum == ("J_h convex" if convex else "Hessian positive definite")
+    assert lin.keep_factored == (not convex) and (lin.factored is None) == convex
+    kept = problem_of("obstacle", 2, degree).minimize(solver=Keeping())
+    assert kept.iterations == result.iterations and kept.minimum == result.minimum
+    np.testing.assert_allclose(kept.x, result.x, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("block", [3, 64, 2 ** 20])
+def test_the_free_values_are_compacted_in_place(block):
+    """compacted(data, keep) is data[keep], written into data's own first entries (a view),
+    for any block size (an entry only moves to an earlier position, read before written)."""
+    from nitsche.problem import compacted
+    rng = np.random.default_rng(3)
+    data = rng.standard_normal(1000)
+    keep = rng.random(1000) < 0.7
+    expected = data[keep]
+    out = compacted(data, keep, block)
+    assert np.shares_memory(out, data)
+    np.testing.assert_array_equal(out, expected)
+    assert compacted(np.ones(5), np.zeros(5, bool)).size == 0
+
+
+def test_a_constraint_gives_its_points_on_demand_where_its_measure_can():
+    """A constraint on cells whose density does not read x keeps no quadrature points (48 MB
+    for the two membranes at 522k unknowns): its `x` (the constraint values' points) are
+    computed from the measure at each read, equal to the measure's points; a density that
+    reads x still keeps them, and the kernels see the same (zero) points as before."""
+    problem = problem_of("two-membrane", 1)
+    t = problem.constraint_terms[0]
+    assert t.points_on_demand and t.data["x"] is None
+    m = t.measure
+    for f in t.fields:
+        m.attach(f)
+    expected = np.moveaxis(m.points, 0, -1)
+    m.release()
+    np.testing.assert_array_equal(t.x, expected)
+    x = problem.minimize().x
+    values = problem.constraint_values(x)["contact"]
+    np.testing.assert_array_equal(values["x"], expected)
+    obstacle = problem_of("obstacle", 1)  # its gap reads x (the obstacle psi(x)): kept
+    kept = obstacle.constraint_terms[0]
+    assert not kept.points_on_demand and kept.data["x"] is not None
