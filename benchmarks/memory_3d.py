@@ -61,8 +61,10 @@ def basis_bytes(basis):
 
 def term_bytes(t):
     """Bytes of a term's tabulations, per-point data and local-to-global maps (kept: a
-    quadratic term's element Hessians are computed anew where needed, not kept)."""
-    arrays = list(t.T or []) + list(getattr(t, "J", None) or []) + [t.W, t.x, t.n, t.h, t.alpha0]
+    quadratic term's element Hessians are computed anew where needed, not kept; a
+    constraint's points given on demand are not kept either)."""
+    points = None if getattr(t, "points_on_demand", False) else t.x
+    arrays = list(t.T or []) + list(getattr(t, "J", None) or []) + [t.W, points, t.n, t.h, t.alpha0]
     arrays += [t.global_dofs] + list(t.dofs) + list(t.field_dofs)
     return nbytes(*arrays)
 
