@@ -71,7 +71,7 @@ def term_bytes(t):
     constraint's points given on demand are not kept either)."""
     points = None if getattr(t, "points_on_demand", False) else t.x
     arrays = list(t.T or []) + list(getattr(t, "J", None) or []) + [t.W, points, t.n, t.h, t.alpha0]
-    arrays += [t.global_dofs] + list(t.dofs) + list(t.field_dofs)
+    arrays += [t.global_dofs] + list(t.field_dofs)
     return nbytes(*arrays)
 
 

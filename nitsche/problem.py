@@ -72,9 +72,9 @@ class Problem:
         # J_h has a potential (Cholesky, energy line search) unless a term is a residual
         self.symmetric = not any(t.residual for t in self.energy_terms + self.constraint_terms)
         self._resolve_alpha0(dict(alpha0_limits or {}))
-        self.value_terms = [t.with_pointwise(c.values())
-                            for c, t in zip(self.constraints, self.constraint_terms)]
         self.assembler = Assembler(self.energy_terms + self.constraint_terms, self.ndofs)
+        self.value_terms = [t.with_pointwise(c.values())  # (after the assembler: the maps it shares)
+                            for c, t in zip(self.constraints, self.constraint_terms)]
         self.sliding = [i for i, c in enumerate(self.constraints) if hasattr(c.on, "pair")]
         self._free_block()
         self._release_measures()
