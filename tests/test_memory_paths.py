@@ -260,3 +260,19 @@ def test_a_constraint_gives_its_points_on_demand_where_its_measure_can():
     obstacle = problem_of("obstacle", 1)  # its gap reads x (the obstacle psi(x)): kept
     kept = obstacle.constraint_terms[0]
     assert not kept.points_on_demand and kept.data["x"] is not None
+
+
+def test_terms_on_equal_maps_share_one_array_of_them():
+    """Each term keeps one local-to-global map (global_dofs), its fields' dofs views of its
+    columns; terms on equal maps that are never paired anew (the two membranes' energy and
+    contact, and the contact's value term) share one array; the solution is unchanged."""
+    problem = problem_of("two-membrane", 2)
+    e, c, v = problem.energy_terms[0], problem.constraint_terms[0], problem.value_terms[0]
+    assert e.global_dofs is c.global_dofs is v.global_dofs
+    for t in (e, c, v):
+        assert all(np.shares_memory(d, t.global_dofs) for d in t.field_dofs)
+        np.testing.assert_array_equal(np.concatenate([d - o for d, o in zip(t.field_dofs, t.offsets)], axis=1),
+                                      np.concatenate([f.dof_basis.dofs.element_dofs.T for f in t.fields], axis=1))
+    own = problem_of("obstacle", 1)  # one field at offset 0: the map is the field's dofs themselves
+    t = own.energy_terms[0]
+    assert np.shares_memory(t.field_dofs[0], t.global_dofs)
