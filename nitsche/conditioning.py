@@ -12,7 +12,7 @@ import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .linalg import METIS_THRESHOLD_2D
+from .linalg import METIS_THRESHOLD_2D, symmetric_csc
 
 DENSE_LIMIT = 500
 SEED = 0
@@ -64,7 +64,8 @@ def condition_number(A, dense_limit=DENSE_LIMIT, tol=1e-5, tol_max=TOL_MAX):
     elif symmetric:
         hi = spla.eigsh(A, k=1, which="LM", tol=tol_max, v0=start_vector(n), return_eigenvectors=False)[0]
         inverse = cholesky_inverse(A)
-        lo = spla.eigsh(A.tocsc(), k=1, sigma=0.0, which="LM", tol=tol, ncv=min(SHIFT_INVERT_NCV, n - 1),
+        lo = spla.eigsh(A if inverse is not None else A.tocsc(), k=1, sigma=0.0, which="LM", tol=tol,
+                        ncv=min(SHIFT_INVERT_NCV, n - 1),
                         v0=start_vector(n), OPinv=inverse, return_eigenvectors=False)[0]
         method = "ARPACK (shift-invert for the smallest" + (", by a Cholesky factor)" if inverse else ")")
     else:
@@ -87,13 +88,13 @@ def cholesky_inverse(A):
     Newton solver orders a 2D problem without points: AMD, METIS above
     METIS_THRESHOLD_2D unknowns (the two membranes' Jacobian at 522k: nnz(L) 29.2M against
     AMD's 39.0M, 1 s more); None when A is not positive definite or scikit-sparse is
-    missing."""
+    missing.  A CSR matrix is factored as its transpose (CSC, no copy: A is symmetric)."""
     try:
         from sksparse.cholmod import cholesky, CholmodNotPositiveDefiniteError
     except ImportError:
         return None
     try:
-        factor = cholesky(A.tocsc(), ordering_method="metis" if A.shape[0] > METIS_THRESHOLD_2D else "amd")
+        factor = cholesky(symmetric_csc(A), ordering_method="metis" if A.shape[0] > METIS_THRESHOLD_2D else "amd")
     except CholmodNotPositiveDefiniteError:
         return None
     if not np.all(factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
