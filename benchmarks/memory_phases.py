@@ -74,7 +74,7 @@ def main():
     if args.trace:
         tracemalloc.start()
     threading.Thread(target=sampler, args=(args.trace,), daemon=True).start()
-    from nitsche import assembly, case, commands, fields, linalg, newton, problem, study
+    from nitsche import assembly, case, commands, conditioning, fields, linalg, newton, problem, study
     for owner, name, what in [
             (case.Case, "problem", "set-up"), (fields.Field, "__init__", "field"),
             (assembly.Term, "__init__", "term"), (problem.Problem, "_resolve_alpha0", "alpha0"),
@@ -84,7 +84,8 @@ def main():
             (linalg, "pcg", "CG"), (problem.Problem, "constraint_values", "constraint values"),
             (commands, "solve", "solve"), (commands, "write_vtu", "out: VTU"),
             (commands, "plot_solution", "out: figure"), (commands, "reactions", "out: reactions"),
-            (commands, "evaluate", "out: quantities"), (commands, "write_json", "out: result.json")]:
+            (commands, "evaluate", "out: quantities"), (commands, "write_json", "out: result.json"),
+            (conditioning, "cholesky_inverse", "out: condition number's factor")]:
         label(owner, name, what)
     from nitsche.cli import main as cli
     stack[:] = ["run"]
