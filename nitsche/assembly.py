@@ -968,22 +968,21 @@ class Assembler:
         indices) of an earlier pattern, so that it only grows) and each term's Scatter;
         terms on equal local-to-global maps share theirs, and, where neither is ever paired
         anew (Term.regenerable), the map itself (Term.share_dofs: the two membranes' energy
-        and contact, 25 MB at 522k unknowns)."""
-        distinct, owners = [], []
+        and contact, one 13 MB array at 522k unknowns instead of two)."""
+        distinct, owners, of_term = [], [], []
         for t in self.terms:
             k = next((k for k, d in enumerate(distinct) if d is t.global_dofs or d.shape == t.global_dofs.shape
                       and np.array_equal(d, t.global_dofs)), None)
             if k is None:
+                k = len(distinct)
                 distinct.append(t.global_dofs)
                 owners.append(t)
             elif t.regenerable and owners[k].regenerable:  # (maps never paired anew: one array)
                 t.share_dofs(distinct[k])
+            of_term.append(k)
         self.pattern = Pattern(distinct, self.ndofs, keep)
         self.indptr, self.indices, self.nnz = self.pattern.indptr, self.pattern.indices, self.pattern.nnz
-        self.scatter = [next(s for d, s in zip(distinct, self.pattern.scatters)
-                             if d is t.global_dofs or d.shape == t.global_dofs.shape
-                             and np.array_equal(d, t.global_dofs))
-                        for t in self.terms]
+        self.scatter = [self.pattern.scatters[k] for k in of_term]
         self._quadratics = {}  # assembled on this pattern
         self._hessian_share = {}  # id(term): the share of its elements with a non-zero Hessian
 
