@@ -6,15 +6,20 @@ CG, constraint values; prolongation; the outputs) are labelled by wrapping their
 functions, and the highest sample of each phase is printed, highest first, with the
 process's VmHWM.  A diagnostic (the wrappers cost little; the seconds are not timings).
 
+Each sample also reads the malloc heap's bytes in use (glibc's mallinfo2: NumPy's arrays,
+CHOLMOD's factor, JAX's host buffers; not the heap's free holes nor the mapped libraries):
+each phase's highest is printed beside its VmRSS.
+
 --trace PHASE also follows NumPy's memory (tracemalloc, which sees NumPy's arrays but not
 CHOLMOD's factor nor JAX's buffers): each phase's highest traced total, and at the highest
-one within the phases whose label holds PHASE (e.g. newton) a snapshot, whose largest
-allocation sites are printed (the arrays alive there, by the line that allocated them;
-tracing slows the run several times).
+heap in use within the phases whose label holds PHASE (e.g. newton) a snapshot, whose
+largest allocation sites are printed (the arrays alive there, by the line that allocated
+them; tracing slows the run several times).
 
     python benchmarks/memory_phases.py obstacle 7 [--trace newton] [--out DIR] [--name memory_phases_obstacle7.json]
 """
 import argparse
+import ctypes
 import functools
 import json
 import os
@@ -27,7 +32,24 @@ import tracemalloc
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 stack, samples = ["imports"], []
-highest = dict(mb=0.0, snapshot=None, where="")  # the NumPy peak (--trace)
+highest = dict(mb=0.0, heap_mb=0.0, snapshot=None, where="")  # the heap's peak in PHASE (--trace)
+
+
+class Mallinfo2(ctypes.Structure):
+    """glibc's struct mallinfo2 (malloc.h)."""
+    _fields_ = [(name, ctypes.c_size_t) for name in
+                "arena ordblks smblks hblks hblkhd usmblks fsmblks uordblks fordblks keepcost".split()]
+
+
+def heap_in_use():
+    """MB allocated by malloc and not freed (uordblks + hblkhd); 0 without glibc's mallinfo2."""
+    try:
+        info = ctypes.CDLL(None).mallinfo2
+    except (OSError, AttributeError):
+        return 0.0
+    info.restype = Mallinfo2
+    m = info()
+    return (m.uordblks + m.hblkhd) / 2 ** 20
 
 
 def status(key):
@@ -41,10 +63,11 @@ def status(key):
 def sampler(trace):
     while True:
         traced = tracemalloc.get_traced_memory()[0] / 2 ** 20 if trace else 0.0
+        heap = heap_in_use()
         where = "/".join(stack[-3:])
-        samples.append((time.perf_counter(), status("VmRSS"), where, traced))
-        if trace and trace in where and traced > highest["mb"] + 8:  # a new NumPy high there
-            highest.update(mb=traced, snapshot=tracemalloc.take_snapshot(), where=where)
+        samples.append((time.perf_counter(), status("VmRSS"), where, traced, heap))
+        if trace and trace in where and heap > highest["heap_mb"] + 8:  # a new heap high there
+            highest.update(mb=traced, heap_mb=heap, snapshot=tracemalloc.take_snapshot(), where=where)
         time.sleep(0.005)
 
 
@@ -93,20 +116,20 @@ def main():
     cli(["run", args.case, "--level", str(args.level), "--out", out])
     time.sleep(0.02)
     t0, peaks = samples[0][0], {}
-    for t, rss, where, traced in samples:
-        if where not in peaks or rss > peaks[where][0]:
-            peaks[where] = (rss, t - t0, max(traced, peaks.get(where, (0, 0, 0))[2]))
-        elif traced > peaks[where][2]:
-            peaks[where] = peaks[where][:2] + (traced,)
+    for t, rss, where, traced, heap in samples:
+        old = peaks.get(where, (0.0, 0.0, 0.0, 0.0))
+        peaks[where] = ((rss, t - t0) if rss > old[0] else old[:2]) + (max(traced, old[2]), max(heap, old[3]))
     rows = sorted(peaks.items(), key=lambda kv: -kv[1][0])
-    print(f"{args.case} level {args.level}: VmHWM {status('VmHWM'):.0f} MB", file=sys.stderr)
-    for where, (rss, t, traced) in rows[:25]:
-        print(f"  {rss:7.0f} MB  at {t:6.2f} s  {where}" + (f"  (NumPy {traced:.0f} MB)" if args.trace else ""),
-              file=sys.stderr)
+    print(f"{args.case} level {args.level}: VmHWM {status('VmHWM'):.0f} MB, heap in use at most "
+          f"{max(s[4] for s in samples):.0f} MB", file=sys.stderr)
+    for where, (rss, t, traced, heap) in rows[:25]:
+        print(f"  {rss:7.0f} MB  at {t:6.2f} s  heap {heap:5.0f} MB  {where}"
+              + (f"  (NumPy {traced:.0f} MB)" if args.trace else ""), file=sys.stderr)
     sites = []
     if highest["snapshot"] is not None:
         stats = highest["snapshot"].statistics("lineno")
-        print(f"NumPy peak {highest['mb']:.0f} MB in {highest['where']}; largest allocation sites:",
+        print(f"heap peak {highest['heap_mb']:.0f} MB (NumPy {highest['mb']:.0f} MB) in {highest['where']}; "
+              "largest allocation sites:",
               file=sys.stderr)
         for st in stats[:20]:
             frame = st.traceback[0]
@@ -117,9 +140,11 @@ def main():
         os.makedirs(RESULTS, exist_ok=True)
         with open(os.path.join(RESULTS, args.name), "w") as fh:
             json.dump(dict(case=args.case, level=args.level, vmhwm_mb=status("VmHWM"),
-                           phases=[dict(phase=w, peak_mb=r, at_seconds=t, numpy_mb=n if args.trace else None)
-                                   for w, (r, t, n) in rows],
-                           numpy_peak=dict(mb=highest["mb"], phase=highest["where"], sites=sites) if args.trace else None,
+                           heap_in_use_mb=max(s[4] for s in samples),
+                           phases=[dict(phase=w, peak_mb=r, at_seconds=t, numpy_mb=n if args.trace else None,
+                                        heap_in_use_mb=h) for w, (r, t, n, h) in rows],
+                           numpy_peak=dict(mb=highest["mb"], heap_mb=highest["heap_mb"], phase=highest["where"],
+                                           sites=sites) if args.trace else None,
                            load=os.getloadavg(), date=time.strftime("%Y-%m-%d %H:%M")), fh, indent=1)
 
 

@@ -380,6 +380,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
                       f"(Newton step {norm(problem, dx):.3g}): {UNBOUNDED}")
             break
         step, x, system = found
+        found = None  # (the system is held by `system` alone: not through the next step's search)
         if not convexified and step == 1.0 and norm(problem, dx) <= 1e-13 * max(norm(problem, free_part(problem, x)), 1e-300):
             converged, reason = True, "full Newton step below round-off"
             it += 1

@@ -160,6 +160,31 @@ def test_the_factor_is_not_held_through_the_constraint_report(monkeypatch):
     assert result.solver == "cholmod" and result.solver_stats["factorizations"] >= 1
 
 
+def test_no_earlier_hessian_is_held_through_an_assembly(monkeypatch):
+    """Each Newton system is assembled with no earlier one's Hessian values alive (the last
+    step's matrix is released before the line search assembles at the full step, and the
+    search's result does not keep the system it returned): one values array per pattern
+    entry at a time; the result is unchanged."""
+    problem = problem_of("obstacle", 3)
+    expected = problem.minimize()
+    problem = problem_of("obstacle", 3)
+    evaluate = type(problem.assembler).evaluate
+    earlier, alive = [], []
+
+    def recorded(self, x, terms=None, hessian=True):
+        gc.collect()
+        alive.append(sum(r() is not None for r in earlier))
+        E, g, data = evaluate(self, x, terms, hessian)
+        if data is not None:
+            earlier.append(weakref.ref(data))
+        return E, g, data
+    monkeypatch.setattr(type(problem.assembler), "evaluate", recorded)
+    result = problem.minimize()
+    assert result.converged and result.iterations >= 3 and len(earlier) >= 3
+    assert max(alive) == 0
+    assert result.energy == expected.energy and np.array_equal(result.x, expected.x)
+
+
 def test_the_meshes_mappings_are_dropped_after_set_up_and_made_again_equal():
     """A built problem holds no scikit-fem mapping of its fields' meshes (the terms hold
     what they read); the dof basis reads the mapping made again, equal to the first."""
