@@ -301,3 +301,28 @@ def test_terms_on_equal_maps_share_one_array_of_them():
     own = problem_of("obstacle", 1)  # one field at offset 0: the map is the field's dofs themselves
     t = own.energy_terms[0]
     assert np.shares_memory(t.field_dofs[0], t.global_dofs)
+
+
+def test_the_fields_of_one_mesh_share_its_inverse_jacobians():
+    """A term's Lagrange fields on its measure's mesh read one array of the mesh's inverse
+    Jacobians (the two membranes' energy: held once, 17 MB at 522k unknowns, until its
+    matrix is assembled), equal to each field's own tabulation's; the term's energies and
+    gradients are unchanged when it is given the fields' own arrays."""
+    from nitsche.measures import Mapped
+    problem = problem_of("two-membrane", 2)
+    t = problem.energy_terms[0]
+    assert len(t.fields) == 2 and t.J[0] is t.J[1] is not None
+    x = np.random.default_rng(0).standard_normal(problem.ndofs)
+    shared = t.run("gradient", x)
+    m = t.measure
+    for i, f in enumerate(t.fields):
+        m.attach(f)
+        T, _ = m.tabulation(f, [0, 1])
+        assert isinstance(T, Mapped)
+        np.testing.assert_array_equal(t.J[i].host, T.invJ)
+        t.J[i] = t._stored(T.invJ)  # each field its own array, as before
+    m.release()
+    assert t.J[0] is not t.J[1]
+    own = t.run("gradient", x)
+    for a, b in zip(shared, own):
+        np.testing.assert_array_equal(a, b)
