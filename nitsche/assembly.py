@@ -395,7 +395,7 @@ class Term:
             if kept.size == 0:
                 kept = np.arange(1)
             if mapped:  # (the inverse Jacobians are the measure's, the same for all its fields:
-                # held once, e.g. for the two membranes' contact, 17 MB at 522k unknowns)
+                # held once, e.g. for the two membranes' energy, 17 MB at 522k unknowns)
                 shared = [J for J in (like.J if like is not None else self.J) if J is not None]
                 self.T.append(self._stored(T.R))
                 self.J.append(shared[0] if shared else self._stored(T.invJ))
