@@ -1016,9 +1016,7 @@ class Assembler:
                     gradients = np.empty((t.nel,) + ge.shape[1:])
                 gradients[s:s + len(ge)] = ge
                 scatter.add(data, H, s)
-            # (one bincount: the sums of np.add.at call by call, in the same order, 10x faster)
-            g = np.zeros(self.ndofs) if gradients is None else \
-                np.bincount(t.global_dofs.ravel(), weights=gradients.ravel(), minlength=self.ndofs)
+            g = np.zeros(self.ndofs) if gradients is None else self._summed(t, gradients)
             own = np.flatnonzero(data)
             if 2 * own.size < self.nnz:
                 index = np.int32 if self.nnz < 2 ** 31 else np.int64
@@ -1063,8 +1061,14 @@ class Assembler:
                 continue
             e, ge = self._assemble(t, scatter, x, data)
             E += float(e.sum())
-            grad += np.bincount(t.global_dofs.ravel(), weights=ge.ravel(), minlength=self.ndofs)
+            grad += self._summed(t, ge)
         return E, grad, data
+
+    def _summed(self, t, gradients):
+        """The global gradient sum_e P_e^T g_e of a term's element gradients g_e (nel, k):
+        one bincount over its map (np.add.at, call by call, gives the same sums in the same
+        order in about 10x the time)."""
+        return np.bincount(t.global_dofs.ravel(), weights=gradients.ravel(), minlength=self.ndofs)
 
     def _assemble(self, t, scatter, x, data=None):
         """A term's element energies and gradients at x, and, data given, data += its Hessian
