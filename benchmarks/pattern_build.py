@@ -102,7 +102,7 @@ def measure(spec, repeat):
     assert np.allclose(old, new, rtol=1e-13, atol=0)
     row = dict(case=spec, unknowns=int(problem.free.size), ndofs=int(n), nnz=int(pattern.nnz),
                element_entries=int(sum(D.shape[0] * D.shape[1] ** 2 for D in maps)),
-               group_pairs=int(sum(s.P.size for s in pattern.scatters)),
+               group_pairs=int(sum(s.R.size for s in pattern.scatters)),
                **{f"{k}_cpu_seconds": statistics.median(v) for k, v in times.items()},
                before_peak_bytes=traced_peak(lambda: entrywise(maps, n)),
                now_peak_bytes=traced_peak(lambda: Pattern(maps, n)),

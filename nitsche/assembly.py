@@ -967,18 +967,20 @@ class Assembler:
     def _build_pattern(self, keep=None):
         """The CSR pattern of all terms' element matrices (and the entries `keep` = (indptr,
         indices) of an earlier pattern, so that it only grows) and each term's Scatter;
-        terms on equal local-to-global maps share theirs, and, where neither is ever paired
-        anew (Term.regenerable), the map itself (Term.share_dofs: the two membranes' energy
-        and contact, one 13 MB array at 522k unknowns instead of two)."""
+        terms on one local-to-global map array share theirs (a Scatter reads the array, which
+        an interface paired anew rewrites in place), and so do terms on equal maps where
+        neither is ever paired anew (Term.regenerable), which then share the array itself
+        (Term.share_dofs: the two membranes' energy and contact, one 13 MB array at 522k
+        unknowns instead of two)."""
         distinct, owners, of_term = [], [], []
         for t in self.terms:
-            k = next((k for k, d in enumerate(distinct) if d is t.global_dofs or d.shape == t.global_dofs.shape
-                      and np.array_equal(d, t.global_dofs)), None)
+            k = next((k for k, d in enumerate(distinct) if d is t.global_dofs or t.regenerable and owners[k].regenerable
+                      and d.shape == t.global_dofs.shape and np.array_equal(d, t.global_dofs)), None)
             if k is None:
                 k = len(distinct)
                 distinct.append(t.global_dofs)
                 owners.append(t)
-            elif t.regenerable and owners[k].regenerable:  # (maps never paired anew: one array)
+            elif distinct[k] is not t.global_dofs:  # (maps never paired anew: one array)
                 t.share_dofs(distinct[k])
             of_term.append(k)
         self.pattern = Pattern(distinct, self.ndofs, keep)
@@ -997,7 +999,7 @@ class Assembler:
                 self._build_pattern(keep=(self.indptr, self.indices))
                 return True
             for k, other in enumerate(self.terms):
-                if other is t:
+                if other.global_dofs is t.global_dofs:  # (a Scatter reads its terms' map)
                     self.scatter[k] = scatter
         return False
 

@@ -62,7 +62,7 @@ def test_vector_fields_group_their_components_and_scatter_by_node_blocks():
     assert (sizes[group[solid.global_dofs]] == 3).all()
     assert runs(solid.global_dofs, group).tolist() == [0, 3, 6, 9]
     scatter = a.scatter[a.terms.index(solid)]
-    assert scatter.P.shape == (solid.nel, 4, 4) and scatter.stride.shape == (solid.nel, 4)
+    assert scatter.R.shape == (solid.nel, 4, 4) and scatter.strided and scatter.R.dtype == np.uint8
     assert u.ndofs == 3 * u.mesh.p.shape[1]
 
 
@@ -81,6 +81,29 @@ def test_groups_break_where_an_element_splits_a_run():
         s.add(data, h)
     assert np.array_equal(sp.csr_matrix((data, p.indices, p.indptr), shape=(6, 6)).toarray(),
                           entrywise([D1, D2], 6, H).toarray())
+
+
+@pytest.mark.parametrize("width, kind", [(4, np.uint8), (300, np.uint16)])
+def test_a_scatter_keeps_offsets_in_the_row_in_the_smallest_type_that_holds_them(width, kind):
+    """Scalar and vector (runs of 3) maps with one long element (a row of `width` groups):
+    the offsets R of the pairs of runs fit the longest row's type, and the scatter from them
+    gives the entry-by-entry matrix exactly (integer-valued entries)."""
+    rng = np.random.default_rng(3)
+    n = 3 * (width + 20)
+    scalar = np.vstack([3 * width + rng.permutation(60)[:6] for _ in range(40)])
+    nodes = np.vstack([rng.permutation(n // 3)[:4] for _ in range(40)])
+    vector = (3 * nodes[:, :, None] + np.arange(3)).reshape(40, 12)
+    long_one = (3 * np.arange(width)[None, :, None] + np.arange(3)).reshape(1, -1)
+    maps = [scalar, vector, long_one]
+    p = Pattern(maps, n)
+    H = [rng.integers(-9, 9, D.shape + D.shape[1:]).astype(float) for D in maps]
+    data = np.zeros(p.nnz)
+    for s, h in zip(p.scatters, H):
+        assert s.R.dtype == kind and s.R.shape == (len(s.D), s.first.size, s.first.size)
+        s.add(data, h)
+    assert p.scatters[2].strided  # (runs of 3 dofs and more)
+    assert np.array_equal(sp.csr_matrix((data, p.indices, p.indptr), shape=(n, n)).toarray(),
+                          entrywise(maps, n, H).toarray())
 
 
 def test_a_pattern_keeps_the_entries_of_an_earlier_one():
