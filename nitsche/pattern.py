@@ -265,7 +265,8 @@ class Scatter:
         position = position.reshape(E, first.size, first.size)
         start = pattern.indptr[lead]
         if pattern.offset is None:  # groups of one dof: the group pattern's positions are these
-            R = position - start[:, :, None]
+            R = position
+            R -= start[:, :, None]
         else:
             R = pattern.offset[position] + (lead - pattern.start[pattern.group[lead]])[:, None, :]
         longest = int(np.diff(pattern.indptr).max(initial=0))
