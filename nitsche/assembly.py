@@ -43,7 +43,7 @@ from .device import empty, host, is_cpu, on_device
 from .functional import ALPHA0, RESERVED
 from .jets import Jet
 from .measures import Mapped
-from .pattern import Pattern
+from .pattern import CHUNK, Pattern
 
 # Quadrature points per kernel call: small, large.  Each size is a kernel shape to load (or
 # compile) once per process; a nested chain loads the small set on its coarse levels and
@@ -1058,8 +1058,9 @@ class Assembler:
                 grad = grad + g0 + Kx
                 if hessian and positions is None:
                     data += K.data
-                elif hessian:
-                    data[positions] += K.data
+                elif hessian:  # (by chunks: no temporary of all of K's values)
+                    for c in range(0, K.nnz, CHUNK):
+                        data[positions[c:c + CHUNK]] += K.data[c:c + CHUNK]
                 continue
             e, ge = self._assemble(t, scatter, x, data)
             E += float(e.sum())
