@@ -64,6 +64,11 @@ class Cholmod:
     low-rank change); otherwise, or when CG needed more than half of them, it is
     factored anew.  rtol=0 asks for a direct solve.
 
+    prune: the factorization is given the entries significant in some matrix factored so
+    far on the same pattern (NonzeroPattern); a caller whose matrices hold only entries
+    significant in some earlier matrix (Problem's Newton matrices: the problem keeps them)
+    sets it False, and each matrix is factored on its own pattern as it is.
+
     keep_factored: a copy of the factored matrix's values is kept, for is_positive_definite's
     test without a new factorization and solve's test for that same matrix (a direct
     solve); a caller that will not ask is_positive_definite (newton where J_h is
@@ -78,7 +83,7 @@ class Cholmod:
 
     def __init__(self, reuse_iterations=25, ordering="default", geometric=False):
         self.factor = self.factored = None
-        self.keep_factored = True
+        self.keep_factored, self.prune = True, True
         self.ordering, self.geometric = ordering, geometric
         self.points = self.perm = None  # the free dofs' coordinates; the nested dissection's order
         self.reordered = None  # with perm: P A P^T's lower triangle, its values positions in A.data
@@ -125,7 +130,7 @@ class Cholmod:
     def _factor(self, A):
         try:
             if self.analyzed is None or not self.analyzed.holds(A):
-                self.analyzed = NonzeroPattern(A, self.analyzed)
+                self.analyzed = NonzeroPattern(A, self.analyzed, self.prune)
                 self.factor = None
             if self.factor is None:
                 self._analyze(A)
@@ -175,9 +180,10 @@ class Cholmod:
 
 class NonzeroPattern:
     """The entries of a sparse pattern that the factorization is given: those significant in
-    some matrix factored so far on it, and the diagonal.  The Newton matrices of J_h share one
-    pattern (every term's element couplings), in which the terms of the points off the active
-    set hold exact zeros (e.g. the coupling of two membranes off their contact set, half of
+    some matrix factored so far on it, and the diagonal (prune False: all of them).  The
+    Hessians of J_h share one pattern (every term's element couplings; Problem's Newton
+    matrices are already pruned, see Problem._admit), in which the terms of the points off
+    the active set hold exact zeros (e.g. the coupling of two membranes off their contact set, half of
     the entries at 130k unknowns) and cancellations hold round-off (the diagonal edges of
     right-angled P1 triangles: |a_ij| ~ 1e-17 sqrt(a_ii a_jj)); their fill costs a
     factorization and every solve with it (two membranes at 130k: nnz(L) 14.2M with the
@@ -188,14 +194,15 @@ class NonzeroPattern:
     entry outside them (a point entered the active set) makes a new symbolic analysis of the
     union."""
 
-    def __init__(self, A, before=None):
+    def __init__(self, A, before=None, prune=True):
         self.indptr, self.indices = A.indptr, A.indices
-        kept = significant(A)
+        kept = significant(A) if prune else np.ones(A.nnz, bool)
         if before is not None and before.same_pattern(A):
             kept |= before.kept
         self.kept, self.all = kept, bool(kept.all())
-        self.kept_indices = A.indices[kept]
-        self.kept_indptr = np.concatenate([[0], np.cumsum(kept)])[A.indptr].astype(A.indptr.dtype)
+        if not self.all:  # (else part() is A itself)
+            self.kept_indices = A.indices[kept]
+            self.kept_indptr = np.concatenate([[0], np.cumsum(kept)])[A.indptr].astype(A.indptr.dtype)
 
     def same_pattern(self, A):
         return (A.indptr is self.indptr and A.indices is self.indices) or (
@@ -213,14 +220,20 @@ class NonzeroPattern:
                              shape=A.shape, copy=False)
 
 
+def row_blocks(indptr, entries=2 ** 20):
+    """(first, end) of blocks of consecutive rows (columns of a CSC matrix) of about
+    `entries` stored entries each, by the compressed pointers indptr."""
+    cuts = np.unique(np.searchsorted(indptr, np.arange(0, indptr[-1], entries), side="right") - 1)
+    return zip(cuts, np.append(cuts[1:], indptr.size - 1))
+
+
 def significant(A, entries=2 ** 20):
     """Of each stored entry of a CSC matrix: on the diagonal, or |a_ij| > ROUNDOFF_ENTRY
     sqrt(|a_ii a_jj|) (not zero, nor the round-off of a cancellation); by blocks of columns
     of about `entries` entries (the temporaries of a block, not of the matrix)."""
     d = np.sqrt(np.abs(A.diagonal()))
     keep = np.empty(A.nnz, bool)
-    cuts = np.unique(np.searchsorted(A.indptr, np.arange(0, A.nnz, entries), side="right") - 1)
-    for c0, c1 in zip(cuts, np.append(cuts[1:], A.shape[1])):
+    for c0, c1 in row_blocks(A.indptr, entries):
         block = slice(A.indptr[c0], A.indptr[c1])
         columns = np.repeat(np.arange(c0, c1), np.diff(A.indptr[c0:c1 + 1]))
         rows = A.indices[block]

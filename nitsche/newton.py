@@ -271,6 +271,8 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     convex = problem.symmetric and getattr(problem, "convex", False)
     if hasattr(lin, "keep_factored"):  # a certified convex J_h needs no positive definite test
         lin.keep_factored = not convex
+    if hasattr(lin, "prune"):  # a Problem's Newton matrices hold their significant entries only
+        lin.prune = not getattr(problem, "pruned", False)
     x = problem.initial(x0)
     if lift and x0 is not None and problem.moved(x0) is not None:
         t = time.perf_counter()

@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from . import partition
 from .assembly import Assembler, ConstantDensity, Parameters, Term, check_arguments
 from .functional import Integral
-from .linalg import make_solver
+from .linalg import ROUNDOFF_ENTRY, make_solver, row_blocks
 from .measures import cells
 from .stability import SingularEnergy, largest_generalized_eigenvalue
 
@@ -32,6 +32,7 @@ class Problem:
     After construction: limits[name] and alpha0[name] per element of each constraint, and
     alpha0_limits[name] the smallest limit.
     """
+    pruned = True  # its Newton matrices hold only the entries significant in some matrix so far (_admit)
 
     def __init__(self, fields, energy, constraints=(), alpha0_limits=None, parameters=None):
         self.fields = list(fields)
@@ -76,7 +77,9 @@ class Problem:
         self.value_terms = [t.with_pointwise(c.values())  # (after the assembler: the maps it shares)
                             for c, t in zip(self.constraints, self.constraint_terms)]
         self.sliding = [i for i, c in enumerate(self.constraints) if hasattr(c.on, "pair")]
-        self._free_block()
+        self._isfree = np.zeros(self.ndofs, bool)
+        self._isfree[self.free] = True
+        self._reset_kept()
         self._release_measures()
 
     def _release_measures(self):
@@ -349,33 +352,73 @@ class Problem:
         x = self.initial(None) if x is None else x
         return self.assembler.hessian(x, terms=self.energy_terms)
 
+    def _reset_kept(self):
+        """The free-free entries the Newton matrices keep: to begin with (and on a grown
+        pattern) the free dofs' diagonal; _admit adds the others as they become significant."""
+        a = self.assembler
+        self._kept = np.zeros(a.nnz, bool)
+        for r0, r1 in row_blocks(a.indptr):
+            rows = np.repeat(np.arange(r0, r1), np.diff(a.indptr[r0:r1 + 1]))
+            p0, p1 = a.indptr[r0], a.indptr[r1]
+            self._kept[p0:p1] = (a.indices[p0:p1] == rows) & self._isfree[rows]
+        self._ff_indices = None  # the free block's structure: built on the first matrix
+
+    def _admit(self, data):
+        """Keep the free-free entries of the Hessian values `data` (the assembler's pattern)
+        that are significant: |a_ij| > ROUNDOFF_ENTRY sqrt(|a_ii a_jj|), not an exact zero
+        (the two membranes' coupling off their contact set, half of the pattern) nor the
+        round-off of a cancellation (linalg.significant).  The kept entries only grow over
+        the matrices of one pattern; True when they grew."""
+        a = self.assembler
+        d = np.sqrt(np.abs(a.matrix(data).diagonal()))
+        grew = False
+        for r0, r1 in row_blocks(a.indptr):
+            p0, p1 = a.indptr[r0], a.indptr[r1]
+            new = data[p0:p1] != 0
+            new &= ~self._kept[p0:p1]
+            j = np.flatnonzero(new)
+            if not j.size:
+                continue
+            rows = np.searchsorted(a.indptr[r0 + 1:r1 + 1], p0 + j, side="right") + r0
+            columns = a.indices[p0 + j]
+            add = np.abs(data[p0 + j]) > ROUNDOFF_ENTRY * d[rows] * d[columns]
+            add &= self._isfree[rows] & self._isfree[columns]
+            self._kept[p0 + j[add]] = True
+            grew = grew or bool(add.any())
+        return grew
+
     def _free_block(self):
-        """The free-free block's CSR structure in the assembler's pattern: the kept entries
-        (_kept, a mask: taking by a mask is twice as fast as by indices, at a quarter of their
-        memory), their free column numbers and the free rows' starts (rows of fixed dofs keep
-        nothing, and the free dofs are ascending, so a free row ends at the kept entries'
-        count up to its end).  Positions and counts in the pattern's index type (int32
-        while the entries fit: the same matrix as with int64 ones, half the memory)."""
+        """The free-free block's CSR structure on the kept entries (_kept, a mask over the
+        assembler's pattern: taking by a mask is twice as fast as by indices, at a quarter
+        of their memory): their free column numbers and the free rows' starts (rows of
+        fixed dofs keep nothing, and the free dofs are ascending, so a free row ends at the
+        kept entries' count up to its end).  Positions and counts in the pattern's index
+        type (int32 while the entries fit: the same matrix as with int64 ones, half the
+        memory)."""
         a = self.assembler
         index = a.indptr.dtype
-        isfree = np.zeros(self.ndofs, bool)
-        isfree[self.free] = True
-        keep = isfree[a.indices]
-        keep &= np.repeat(isfree, np.diff(a.indptr))
-        self._kept = keep
         number = np.full(self.ndofs, -1, index)
         number[self.free] = np.arange(self.free.size, dtype=index)
-        self._ff_indices = number[a.indices[keep]]
-        count = np.zeros(keep.size + 1, index)  # kept entries before each position
-        np.cumsum(keep, dtype=index, out=count[1:])
+        self._ff_indices = number[a.indices[self._kept]]
+        count = np.zeros(self._kept.size + 1, index)  # kept entries before each position
+        np.cumsum(self._kept, dtype=index, out=count[1:])
         self._ff_indptr = np.concatenate([count[:1], count[a.indptr[self.free + 1]]])
 
     def _free_matrix(self, data):
-        """The free-free block of the CSR matrix with the assembler's pattern and `data`, its
-        values compacted into data's first entries (data is overwritten: no second array of
-        the values beside it, 56 MB at the two membranes' 522k unknowns)."""
+        """The free-free block of the CSR matrix with the assembler's pattern and `data`, on
+        its kept entries (the significant ones of every matrix so far: the same matrix to
+        round-off, which CG, the factorizations and their fill do not pay for the exact
+        zeros; a structure that grew is a new symbolic analysis), its values compacted into
+        data's first entries (data is overwritten: no second array of the values beside it,
+        56 MB at the two membranes' 522k unknowns), or, where it keeps less than half of
+        them, copied out of it, so that data can go."""
+        if self._admit(data) or self._ff_indices is None:
+            self._free_block()
+        values = compacted(data, self._kept)
+        if 2 * values.size < data.size:  # (a copy that lets data go, as SciPy would take)
+            values = values.copy()
         n = self.free.size
-        return sp.csr_matrix((compacted(data, self._kept), self._ff_indices, self._ff_indptr), shape=(n, n))
+        return sp.csr_matrix((values, self._ff_indices, self._ff_indptr), shape=(n, n))
 
     def update_pairing(self, x):
         """Pair the points of every interface with pairing='current' anew at x (nitsche.sliding)
@@ -388,7 +431,7 @@ class Problem:
             self.constraint_terms[i].retabulate()  # value_terms[i] shares its tabulations
             grew = self.assembler.refresh([self.constraint_terms[i]]) or grew
         if grew:
-            self._free_block()
+            self._reset_kept()
         return grew
 
     def paired_facets(self):

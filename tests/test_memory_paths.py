@@ -129,19 +129,55 @@ def test_a_quadratic_terms_assembly_equals_np_add_at_call_by_call(name, level, d
 
 @pytest.mark.parametrize("name, level", [("obstacle", 2), ("two-membrane", 1),
                                          ("membrane-solid", 0)])
-def test_the_free_block_in_int32_is_the_free_rows_and_columns(name, level):
+def test_the_free_block_in_int32_is_the_free_rows_and_columns_on_their_significant_entries(name, level):
     """The Newton matrix's free-free block, built from int32 positions and counts, is the
-    full Hessian's rows and columns of the free dofs (same values, same structure)."""
+    full Hessian's rows and columns of the free dofs on their significant entries: the
+    same values there, and off them exact zeros or the round-off of a cancellation
+    (|a_ij| <= ROUNDOFF_ENTRY sqrt(|a_ii a_jj|)), which it leaves out."""
+    from nitsche.linalg import ROUNDOFF_ENTRY, significant
     problem = problem_of(name, level)
     x = problem.initial(None) + 1e-2 * np.random.default_rng(5).standard_normal(problem.ndofs)
     _, _, data = problem.assembler.evaluate(x)
     full = problem.assembler.matrix(data.copy())[problem.free][:, problem.free]
-    A = problem._free_matrix(data)  # (data compacted in place: A's values are a view of it)
-    assert np.shares_memory(A.data, data)
+    A = problem._free_matrix(data)  # (data compacted in place: A's values a view of it, or a copy of less than half)
+    assert np.shares_memory(A.data, data) == (2 * A.nnz >= data.size)
     assert problem._kept.dtype == bool and problem._ff_indptr.dtype == np.int32
     assert A.indices.dtype == np.int32 and A.indptr.dtype == np.int32
-    assert np.array_equal(A.indptr, full.indptr) and np.array_equal(A.indices, full.indices)
-    np.testing.assert_array_equal(A.data, full.data)
+    kept = significant(full)
+    assert np.array_equal(A.indptr, np.concatenate([[0], np.cumsum(kept)])[full.indptr])
+    assert np.array_equal(A.indices, full.indices[kept])
+    np.testing.assert_array_equal(A.data, full.data[kept])
+    d = np.sqrt(np.abs(full.diagonal()))
+    rows = np.repeat(np.arange(full.shape[0]), np.diff(full.indptr))
+    left = ~kept
+    assert np.all(np.abs(full.data[left]) <= ROUNDOFF_ENTRY * d[rows[left]] * d[full.indices[left]])
+
+
+def test_the_free_block_keeps_the_entries_significant_in_any_matrix_so_far():
+    """Two membranes: off their contact set the coupling's entries are exact zeros, left out
+    of the free block (half of them here); a matrix whose contact set is larger makes them
+    grow (a new structure), and a later matrix with fewer is given on the grown structure,
+    its left entries as explicit zeros (the kept entries only grow: one symbolic analysis)."""
+    problem = problem_of("two-membrane", 2)
+    a = problem.assembler
+    free = problem.assembler.matrix(np.ones(a.nnz))[problem.free][:, problem.free]
+    x0 = problem.initial(None)
+    _, _, data = a.evaluate(x0)
+    A0 = problem._free_matrix(data)
+    assert A0.nnz < 0.8 * free.nnz
+    structure = problem._ff_indices
+    x1 = x0.copy()
+    x1[:problem.offsets["u2"]] += 1.0  # u1 pushed through u2 (gap u2 + d - u1 < 0): contact everywhere
+    _, _, data = a.evaluate(x1)
+    full = a.matrix(data.copy())[problem.free][:, problem.free]
+    A1 = problem._free_matrix(data)
+    assert problem._ff_indices is not structure and A1.nnz > A0.nnz
+    np.testing.assert_array_equal(A1.toarray(), full.toarray())
+    structure = problem._ff_indices
+    _, _, data = a.evaluate(x0)
+    A2 = problem._free_matrix(data)
+    assert problem._ff_indices is structure and A2.nnz == A1.nnz
+    np.testing.assert_array_equal(A2.toarray(), A0.toarray())
 
 
 @pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")

@@ -93,15 +93,22 @@ def previous_free_block(problem):
                                         ("two-membrane", {})])
 def test_free_block_as_before(name, sets):
     """Problem._free_block's selection (now a mask), column numbers and row starts equal the
-    previous formula's, in the pattern's index type (int32 here: the int64 selection and row starts
-    of the previous formula were cut to int32 in session 23)."""
+    previous formula's on the entries significant in the matrices so far (here the first;
+    linalg.significant), in the pattern's index type (int32 here: the int64 selection and
+    row starts of the previous formula were cut to int32 in session 23)."""
     from nitsche.cases import get
+    from nitsche.linalg import significant
     case = get(name)
     problem = case.problem(1, case.degrees[0], case.parameters(sets))
     assert problem.fixed.size > 0
+    _, _, data = problem.assembler.evaluate(problem.initial(None))
+    held = significant(problem.assembler.matrix(data.copy()))
+    problem._free_matrix(data)
     selection, indices, indptr = previous_free_block(problem)
-    assert np.array_equal(np.flatnonzero(problem._kept), selection)  # (a mask of the kept entries)
-    for e, g in zip((indices, indptr), (problem._ff_indices, problem._ff_indptr)):
+    kept = held[selection]
+    assert np.array_equal(np.flatnonzero(problem._kept), selection[kept])  # (a mask of the kept entries)
+    for e, g in zip((indices[kept], np.concatenate([[0], np.cumsum(kept)])[indptr]),
+                    (problem._ff_indices, problem._ff_indptr)):
         assert g.dtype == problem.assembler.indptr.dtype == np.int32 and np.array_equal(e, g)
 
 
