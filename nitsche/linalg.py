@@ -277,26 +277,31 @@ def symmetric_csc(A):
 
 
 def semidefinite_difference(A, F, zero=False):
-    """Whether D = A - F is positive semidefinite (zero: whether D = 0), A and F CSC
-    matrices of one pattern (another pattern: False).  Between Newton matrices of J_h, D is the change of the terms
+    """Whether D = A - F is positive semidefinite (zero: whether D = 0, False without a test
+    where the patterns differ), A and F CSC matrices (A's pattern may have grown since F's:
+    Problem's Newton matrices keep the entries significant so far).  Between Newton
+    matrices of J_h, D is the change of the terms
     whose state changed (a point entering the active set adds the rank-one
     alpha (lambda' - g'/alpha)(lambda' - g'/alpha)^T), supported on the rows S of
     those points' dofs; D_SS + eps I is tested by a Cholesky factorization of that
     small block, eps = 1e-14 max |diag A|, the accuracy of a Cholesky test of A itself.
     False without a test when D is not small (more than 1/16 of the entries changed, e.g.
     a nonlinear energy): factoring A is then the cheaper test."""
-    if not (np.array_equal(A.indptr, F.indptr) and np.array_equal(A.indices, F.indices)):
+    if np.array_equal(A.indptr, F.indptr) and np.array_equal(A.indices, F.indices):
+        changed = np.flatnonzero(A.data != F.data)
+        rows, columns, values = A.indices[changed], column_indices(A)[changed], A.data[changed] - F.data[changed]
+    elif zero:
         return False
-    changed = np.flatnonzero(A.data != F.data)
-    if changed.size == 0 or zero:
-        return changed.size == 0
-    if changed.size > A.data.size // 16:
+    else:
+        D = (A - F).tocoo()
+        changed = np.flatnonzero(D.data)
+        rows, columns, values = D.row[changed], D.col[changed], D.data[changed]
+    if values.size == 0 or zero:
+        return values.size == 0
+    if values.size > A.data.size // 16:
         return False
-    columns = column_indices(A)[changed]
-    rows = A.indices[changed]
     S, local = np.unique(np.concatenate([rows, columns]), return_inverse=True)
-    D = sp.csc_matrix((A.data[changed] - F.data[changed], (local[:rows.size], local[rows.size:])),
-                      shape=(S.size, S.size))
+    D = sp.csc_matrix((values, (local[:rows.size], local[rows.size:])), shape=(S.size, S.size))
     eps = 1e-14 * np.abs(A.diagonal()).max()
     try:
         return bool(np.all(cholesky(D, beta=eps).D() > 0))

@@ -139,7 +139,13 @@ def test_a_semidefinite_change_of_the_factored_matrix_needs_no_factorization():
         assert lin.is_positive_definite(A) == (np.linalg.eigvalsh(A.toarray()).min() > 0)
         assert lin.factorizations - before <= factors
     assert semidefinite_difference(F.copy(), F) and not semidefinite_difference(F - 1e-8 * sp.eye(n, format="csc"), F)
-    assert not semidefinite_difference(sp.eye(n, format="csc"), F)  # another pattern
+    assert not semidefinite_difference(sp.eye(n, format="csc"), F)  # another pattern, a large change
+    w = sp.csc_matrix(([1.0, 1.0], ([0, 5], [0, 0])), shape=(n, 1))  # (0, 5): outside F's pattern
+    for sign in (1.0, -1e-3):  # a pattern grown by a small change: tested, as on one pattern
+        G = (F + sign * (w @ w.T)).tocsc()
+        G.sort_indices()
+        assert G.nnz > F.nnz and semidefinite_difference(G, F) == (sign > 0)
+        assert not semidefinite_difference(G, F, zero=True)
 
 
 def obstacle_problem(element=ElementTriP1(), energy=None, gap=None, multiplier="lap", theta=1,
