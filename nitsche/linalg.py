@@ -183,11 +183,12 @@ class NonzeroPattern:
     some matrix factored so far on it, and the diagonal (prune False: all of them).  The
     Hessians of J_h share one pattern (every term's element couplings; Problem's Newton
     matrices are already pruned, see Problem._admit), in which the terms of the points off
-    the active set hold exact zeros (e.g. the coupling of two membranes off their contact set, half of
-    the entries at 130k unknowns) and cancellations hold round-off (the diagonal edges of
-    right-angled P1 triangles: |a_ij| ~ 1e-17 sqrt(a_ii a_jj)); their fill costs a
-    factorization and every solve with it (two membranes at 130k: nnz(L) 14.2M with the
-    zeros, 7.9M without; the obstacle's 9.67M with the round-off, 5.6M without).  An entry is
+    the active set hold exact zeros (e.g. the coupling of two membranes off their contact
+    set, half of the entries at 130k unknowns) and cancellations hold round-off (the
+    diagonal edges of right-angled P1 triangles: |a_ij| ~ 1e-17 sqrt(a_ii a_jj)); their
+    fill costs a factorization and every solve with it (two membranes at 130k: nnz(L) 14.2M
+    with the zeros, 7.9M without; the obstacle's 9.67M with the round-off, 5.6M without).
+    An entry is
     significant where |a_ij| > ROUNDOFF_ENTRY sqrt(|a_ii a_jj|); the factor is then that of a
     matrix within ROUNDOFF_ENTRY * (entries per row) of A after diagonal scaling, the accuracy
     of a factorization of A itself.  The kept entries only grow: a matrix with a significant
@@ -280,8 +281,8 @@ def semidefinite_difference(A, F, zero=False):
     """Whether D = A - F is positive semidefinite (zero: whether D = 0, False without a test
     where the patterns differ), A and F CSC matrices (A's pattern may have grown since F's:
     Problem's Newton matrices keep the entries significant so far).  Between Newton
-    matrices of J_h, D is the change of the terms
-    whose state changed (a point entering the active set adds the rank-one
+    matrices of J_h, D is the change of the terms whose state changed (a point entering the
+    active set adds the rank-one
     alpha (lambda' - g'/alpha)(lambda' - g'/alpha)^T), supported on the rows S of
     those points' dofs; D_SS + eps I is tested by a Cholesky factorization of that
     small block, eps = 1e-14 max |diag A|, the accuracy of a Cholesky test of A itself.

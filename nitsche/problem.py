@@ -374,11 +374,10 @@ class Problem:
         grew = False
         for r0, r1 in row_blocks(a.indptr):
             p0, p1 = a.indptr[r0], a.indptr[r1]
-            new = data[p0:p1] != 0
-            new &= ~self._kept[p0:p1]
-            j = np.flatnonzero(new)
-            if not j.size:
+            new = np.greater(data[p0:p1] != 0, self._kept[p0:p1])  # (non-zero and not kept)
+            if not new.any():
                 continue
+            j = np.flatnonzero(new)
             rows = np.searchsorted(a.indptr[r0 + 1:r1 + 1], p0 + j, side="right") + r0
             columns = a.indices[p0 + j]
             add = np.abs(data[p0 + j]) > ROUNDOFF_ENTRY * d[rows] * d[columns]
@@ -397,12 +396,18 @@ class Problem:
         memory)."""
         a = self.assembler
         index = a.indptr.dtype
+        self._ff_indices = None  # (the earlier structure not held beside the new one)
         number = np.full(self.ndofs, -1, index)
         number[self.free] = np.arange(self.free.size, dtype=index)
-        self._ff_indices = number[a.indices[self._kept]]
-        count = np.zeros(self._kept.size + 1, index)  # kept entries before each position
-        np.cumsum(self._kept, dtype=index, out=count[1:])
-        self._ff_indptr = np.concatenate([count[:1], count[a.indptr[self.free + 1]]])
+        columns = a.indices[self._kept]
+        np.take(number, columns, out=columns)
+        ends = np.zeros(self.ndofs + 1, index)  # kept entries up to each row's end, by blocks
+        for r0, r1 in row_blocks(a.indptr):
+            p0 = a.indptr[r0]
+            count = np.zeros(a.indptr[r1] - p0 + 1, index)
+            np.cumsum(self._kept[p0:a.indptr[r1]], dtype=index, out=count[1:])
+            ends[r0 + 1:r1 + 1] = ends[r0] + count[a.indptr[r0 + 1:r1 + 1] - p0]
+        self._ff_indices, self._ff_indptr = columns, np.concatenate([ends[:1], ends[self.free + 1]])
 
     def _free_matrix(self, data):
         """The free-free block of the CSR matrix with the assembler's pattern and `data`, on
