@@ -265,14 +265,18 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     t_start = time.perf_counter()
     c0 = assembly.compile_seconds[0]
     timings = {"assembly": 0.0, "solve": 0.0, "line_search": 0.0, "minimum_check": 0.0}
-    lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
-    if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
-        lin.prepare(problem)
     convex = problem.symmetric and getattr(problem, "convex", False)
-    if hasattr(lin, "keep_factored"):  # a certified convex J_h needs no positive definite test
-        lin.keep_factored = not convex
-    if hasattr(lin, "prune"):  # a Problem's Newton matrices hold their significant entries only
-        lin.prune = not getattr(problem, "pruned", False)
+
+    def linear_solver():
+        lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
+        if hasattr(lin, "prepare"):  # e.g. AMG: near-nullspace from the fields
+            lin.prepare(problem)
+        if hasattr(lin, "keep_factored"):  # a certified convex J_h needs no positive definite test
+            lin.keep_factored = not convex
+        if hasattr(lin, "prune"):  # a Problem's Newton matrices hold their significant entries only
+            lin.prune = not getattr(problem, "pruned", False)
+        return lin
+    lin = linear_solver()
     x = problem.initial(x0)
     if lift and x0 is not None and problem.moved(x0) is not None:
         t = time.perf_counter()
@@ -294,7 +298,7 @@ def newton(problem, x0=None, rtol=RTOL, maxiter=50, solver="auto", progress=None
     for it in range(maxiter + 1):
         t = time.perf_counter()
         if sliding and problem.update_pairing(x):  # a new matrix structure
-            lin = make_solver(solver, problem.free.size, problem.dim, problem.symmetric)
+            lin = linear_solver()
         timings["assembly"] += time.perf_counter() - t
         A = M = None  # the last step's matrices are not held through this assembly
         E, g, A = system or system_at(x)

@@ -313,6 +313,32 @@ def test_the_factored_copy_is_kept_only_for_the_positive_definite_test(degree, c
     np.testing.assert_allclose(kept.x, result.x, rtol=0, atol=1e-12)
 
 
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_a_solver_made_anew_for_a_new_structure_is_set_up_as_the_first(monkeypatch):
+    """Where an interface paired anew grows the pattern (here every iteration, by a stand-in
+    for update_pairing), Newton makes a new linear solver; each is set up as the first one:
+    no pruning of the problem's already pruned matrices, a factored copy only where J_h is
+    not certified convex, and the run reaches the plain run's minimizer."""
+    from nitsche import newton as newton_module
+    made = []
+
+    def recording(*args, **kwargs):
+        made.append(newton_module.make_solver.__wrapped__(*args, **kwargs))
+        return made[-1]
+    recording.__wrapped__ = newton_module.make_solver
+    monkeypatch.setattr(newton_module, "make_solver", recording)
+    plain = problem_of("two-membrane", 2).minimize(solver="cholmod")
+    problem = problem_of("two-membrane", 2)
+    problem.sliding = [0]
+    problem.update_pairing = lambda x: True
+    made.clear()
+    result = problem.minimize(solver="cholmod")
+    assert result.converged and len(made) > result.iterations  # (the first one and one per pass)
+    assert all(isinstance(lin, Cholmod) and not lin.prune and lin.keep_factored == (not problem.convex)
+               for lin in made)
+    np.testing.assert_allclose(result.x, plain.x, rtol=0, atol=1e-10)
+
+
 @pytest.mark.parametrize("block", [3, 64, 2 ** 20])
 def test_the_free_values_are_compacted_in_place(block):
     """compacted(data, keep) is data[keep], written into data's own first entries (a view),
