@@ -956,6 +956,48 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
             "values": values}[kind]
 
 
+class GradientSum:
+    """The global vector sum_e P_e^T g_e of a term's element vectors g_e (the gradients),
+    given call by call in increasing element order (add(first element, g)): the sums of
+    one bincount of all of them over the map D (E, k), bit for bit, without an array of all
+    g_e nor an int64 copy of all of D (50 MB for the two membranes at 522k).  The g_e are
+    gathered with their dofs in a buffer of about 2 n entries after [0, n), which holds the
+    running sums; a full buffer is summed by one bincount, which adds in array order: the
+    running sum of each dof first, then its new entries, as one bincount of all would."""
+
+    def __init__(self, D, n):
+        self.D, self.n, self.k = D, n, max(D.shape[1], 1)
+        self.step = max(1, 2 * n // self.k)  # elements per bincount
+        self.index = np.empty(n + self.step * self.k, np.intp)
+        self.index[:n] = np.arange(n)
+        self.values = np.zeros(self.index.size)
+        self.held = 0  # elements in the buffer
+
+    def add(self, first, g):
+        g = g.reshape(len(g), -1)
+        i = 0
+        while i < len(g):
+            m = min(self.step - self.held, len(g) - i)
+            a = self.n + self.held * self.k
+            self.values[a:a + m * self.k] = g[i:i + m].ravel()
+            self.index[a:a + m * self.k] = self.D[first + i:first + i + m].ravel()
+            self.held += m
+            i += m
+            if self.held == self.step:
+                self._sum()
+
+    def _sum(self):
+        end = self.n + self.held * self.k
+        self.values[:self.n] = np.bincount(self.index[:end], weights=self.values[:end], minlength=self.n)
+        self.held = 0
+
+    def total(self):
+        """The sums (n,)."""
+        if self.held:
+            self._sum()
+        return self.values[:self.n].copy()
+
+
 class Assembler:
     """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms; residual
     terms add to the gradient (the residual) and Hessian (its Jacobian), not to the energy."""
@@ -1011,14 +1053,12 @@ class Assembler:
         pattern entry (8 bytes each against 16: value, column, position); positions None: K
         has the pattern's own structure and data."""
         if id(t) not in self._quadratics:
-            E, gradients, data = 0.0, None, np.zeros(self.nnz)
+            E, gradient, data = 0.0, GradientSum(t.global_dofs, self.ndofs), np.zeros(self.nnz)
             for s, (e, ge, H) in t.calls("full", np.zeros(self.ndofs)):
                 E += float(e.sum())
-                if gradients is None:
-                    gradients = np.empty((t.nel,) + ge.shape[1:])
-                gradients[s:s + len(ge)] = ge
+                gradient.add(s, ge)
                 scatter.add(data, H, s)
-            g = np.zeros(self.ndofs) if gradients is None else self._summed(t, gradients)
+            g = gradient.total()
             own = np.flatnonzero(data)
             if 2 * own.size < self.nnz:
                 index = np.int32 if self.nnz < 2 ** 31 else np.int64
@@ -1064,21 +1104,16 @@ class Assembler:
                 continue
             e, ge = self._assemble(t, scatter, x, data)
             E += float(e.sum())
-            grad += self._summed(t, ge)
+            grad += ge
         return E, grad, data
 
-    def _summed(self, t, gradients):
-        """The global gradient sum_e P_e^T g_e of a term's element gradients g_e (nel, k):
-        one bincount over its map (np.add.at, call by call, gives the same sums in the same
-        order in about 10x the time)."""
-        return np.bincount(t.global_dofs.ravel(), weights=gradients.ravel(), minlength=self.ndofs)
-
     def _assemble(self, t, scatter, x, data=None):
-        """A term's element energies and gradients at x, and, data given, data += its Hessian
-        (CSR data), kernel call by kernel call: each call's element Hessians are scattered
-        as they come (Scatter.add_pieces: the sums of one scatter of all of them, bitwise),
-        so that no array of all elements' Hessians is formed.  (The gradients are summed by
-        one bincount: per call, np.add.at took 10x its time for 25 MB less at 1M cells.)
+        """A term's element energies and its global gradient at x, and, data given, data +=
+        its Hessian (CSR data), kernel call by kernel call: each call's element Hessians are
+        scattered as they come (Scatter.add_pieces: the sums of one scatter of all of them,
+        bitwise), and its gradients summed as they come (GradientSum: those of one bincount
+        of all of them, bitwise), so that no array of all elements' Hessians or gradients is
+        formed.  (Per call, np.add.at took 10x the bincount's time.)
 
         A term whose element Hessians were mostly exact zeros at its last assembly (at most
         SPARSE_HESSIAN of them non-zero: a contact term off its active set where the
@@ -1087,19 +1122,17 @@ class Assembler:
         those elements only; the others' are exact zeros, which add_pieces leaves out
         anyway, so the sums are the same bit for bit.  (On the CPU only: the second pass
         gathers its elements' data on the host, a transfer from an accelerator.)"""
-        energies, gradients = np.empty(t.nel), None
+        energies, gradient = np.empty(t.nel), GradientSum(t.global_dofs, self.ndofs)
         share = self._hessian_share.get(id(t))
         sparse = data is not None and share is not None and share <= SPARSE_HESSIAN and is_cpu()
         kind = "gradient" if data is None else "support" if sparse else "full"
         support = np.empty(t.nel, bool) if sparse else None
 
         def pieces():
-            nonlocal gradients
             for s, out in t.calls(kind, x):
                 rows = slice(s, s + len(out[0]))
-                if gradients is None:
-                    gradients = np.empty((t.nel,) + out[1].shape[1:])
-                energies[rows], gradients[rows] = out[0], out[1]
+                energies[rows] = out[0]
+                gradient.add(s, out[1])
                 if sparse:
                     support[rows] = out[2]
                 elif data is not None:
@@ -1115,7 +1148,7 @@ class Assembler:
             count = scatter.add_pieces(data, pieces())
         if data is not None:
             self._hessian_share[id(t)] = count / max(t.nel, 1)
-        return energies, gradients
+        return energies, gradient.total()
 
     def gradient(self, x, terms=None):
         """J(x) and its gradient, without the Hessian."""
