@@ -974,7 +974,7 @@ class GradientSum:
         self.held = 0  # elements in the buffer
 
     def add(self, first, g):
-        g = g.reshape(len(g), -1)
+        g = g.reshape(len(g), self.D.shape[1])  # (e, k): a call may hold no element
         i = 0
         while i < len(g):
             m = min(self.step - self.held, len(g) - i)

@@ -354,6 +354,7 @@ def test_a_gradient_summed_call_by_call_is_one_bincount_bitwise(n, k):
     cuts = np.unique(np.concatenate([[0, E], rng.integers(0, E, 17)]))
     for a, b in zip(cuts[:-1], cuts[1:]):
         summed.add(a, g[a:b])
+        summed.add(b, g[b:b])  # (a call without elements: a rank that holds none)
     total = summed.total()
     assert np.array_equal(total, np.bincount(D.ravel(), weights=g.ravel(), minlength=n))
     assert not np.array_equal(total, np.bincount(D[::-1].ravel(), weights=g[::-1].ravel(), minlength=n))
