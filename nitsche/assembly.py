@@ -961,24 +961,27 @@ class GradientSum:
     given call by call in increasing element order (add(first element, g)): the sums of
     one bincount of all of them over the map D (E, k), bit for bit, without an array of all
     g_e nor an int64 copy of all of D (50 MB for the two membranes at 522k).  The g_e are
-    gathered with their dofs in a buffer of about 2 n entries after [0, n), which holds the
-    running sums; a full buffer is summed by one bincount, which adds in array order: the
-    running sum of each dof first, then its new entries, as one bincount of all would."""
+    gathered with their dofs in a buffer of at most 2 n entries (all of them for a term of
+    fewer: one bincount), after [0, n), which holds the running sums; a full buffer is
+    summed by one bincount, which adds in array order: the running sum of each dof first,
+    then its new entries, as one bincount of all would."""
 
     def __init__(self, D, n):
-        self.D, self.n, self.k = D, n, max(D.shape[1], 1)
-        self.step = max(1, 2 * n // self.k)  # elements per bincount
-        self.index = np.empty(n + self.step * self.k, np.intp)
-        self.index[:n] = np.arange(n)
+        E, self.k = D.shape
+        self.D, self.n = D, n
+        self.step = max(1, min(E, 2 * n // max(self.k, 1)))  # elements per bincount
+        self.prefix = n if E > self.step else 0  # the running sums, where more than one bincount
+        self.index = np.empty(self.prefix + self.step * self.k, np.intp)
+        self.index[:self.prefix] = np.arange(self.prefix)
         self.values = np.zeros(self.index.size)
-        self.held = 0  # elements in the buffer
+        self.held, self.sums = 0, None  # elements in the buffer; the sums of a single bincount
 
     def add(self, first, g):
-        g = g.reshape(len(g), self.D.shape[1])  # (e, k): a call may hold no element
+        g = g.reshape(len(g), self.k)  # (e, k): a call may hold no element
         i = 0
         while i < len(g):
             m = min(self.step - self.held, len(g) - i)
-            a = self.n + self.held * self.k
+            a = self.prefix + self.held * self.k
             self.values[a:a + m * self.k] = g[i:i + m].ravel()
             self.index[a:a + m * self.k] = self.D[first + i:first + i + m].ravel()
             self.held += m
@@ -987,15 +990,21 @@ class GradientSum:
                 self._sum()
 
     def _sum(self):
-        end = self.n + self.held * self.k
-        self.values[:self.n] = np.bincount(self.index[:end], weights=self.values[:end], minlength=self.n)
+        end = self.prefix + self.held * self.k
+        sums = np.bincount(self.index[:end], weights=self.values[:end], minlength=self.n)
+        if self.prefix:
+            self.values[:self.n] = sums
+        else:
+            self.sums = sums
         self.held = 0
 
     def total(self):
         """The sums (n,)."""
         if self.held:
             self._sum()
-        return self.values[:self.n].copy()
+        if self.prefix:
+            return self.values[:self.n].copy()
+        return np.zeros(self.n) if self.sums is None else self.sums
 
 
 class Assembler:
