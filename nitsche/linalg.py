@@ -188,10 +188,9 @@ class NonzeroPattern:
     diagonal edges of right-angled P1 triangles: |a_ij| ~ 1e-17 sqrt(a_ii a_jj)); their
     fill costs a factorization and every solve with it (two membranes at 130k: nnz(L) 14.2M
     with the zeros, 7.9M without; the obstacle's 9.67M with the round-off, 5.6M without).
-    An entry is
-    significant where |a_ij| > ROUNDOFF_ENTRY sqrt(|a_ii a_jj|); the factor is then that of a
-    matrix within ROUNDOFF_ENTRY * (entries per row) of A after diagonal scaling, the accuracy
-    of a factorization of A itself.  The kept entries only grow: a matrix with a significant
+    An entry is significant where |a_ij| > ROUNDOFF_ENTRY sqrt(|a_ii a_jj|); the factor is
+    then that of a matrix within ROUNDOFF_ENTRY * (entries per row) of A after diagonal
+    scaling, the accuracy of a factorization of A itself.  The kept entries only grow: a matrix with a significant
     entry outside them (a point entered the active set) makes a new symbolic analysis of the
     union."""
 
@@ -238,11 +237,17 @@ def significant(A, entries=2 ** 20):
         block = slice(A.indptr[c0], A.indptr[c1])
         columns = np.repeat(np.arange(c0, c1), np.diff(A.indptr[c0:c1 + 1]))
         rows = A.indices[block]
-        scale = d[rows]
-        scale *= d[columns]
-        scale *= ROUNDOFF_ENTRY
-        keep[block] = (np.abs(A.data[block]) > scale) | (rows == columns)
+        keep[block] = is_significant(A.data[block], rows, columns, d)
     return keep
+
+
+def is_significant(values, rows, columns, d):
+    """Of entries a_ij (values at rows i, columns j): on the diagonal, or |a_ij| >
+    ROUNDOFF_ENTRY d_i d_j, d = sqrt(|diag A|)."""
+    scale = d[rows]
+    scale *= d[columns]
+    scale *= ROUNDOFF_ENTRY
+    return (np.abs(values) > scale) | (rows == columns)
 
 
 def permuted_lower(A, perm):

@@ -7,7 +7,7 @@ import scipy.sparse as sp
 from . import partition
 from .assembly import Assembler, ConstantDensity, Parameters, Term, check_arguments
 from .functional import Integral
-from .linalg import ROUNDOFF_ENTRY, make_solver, row_blocks
+from .linalg import is_significant, make_solver, row_blocks
 from .measures import cells
 from .stability import SingularEnergy, largest_generalized_eigenvalue
 
@@ -365,9 +365,9 @@ class Problem:
 
     def _admit(self, data):
         """Keep the free-free entries of the Hessian values `data` (the assembler's pattern)
-        that are significant: |a_ij| > ROUNDOFF_ENTRY sqrt(|a_ii a_jj|), not an exact zero
-        (the two membranes' coupling off their contact set, half of the pattern) nor the
-        round-off of a cancellation (linalg.significant).  The kept entries only grow over
+        that are significant (linalg.is_significant: |a_ij| > ROUNDOFF_ENTRY sqrt(|a_ii
+        a_jj|)): not an exact zero (the two membranes' coupling off their contact set, half
+        of the pattern) nor the round-off of a cancellation.  The kept entries only grow over
         the matrices of one pattern; True when they grew."""
         a = self.assembler
         d = np.sqrt(np.abs(a.matrix(data).diagonal()))
@@ -380,7 +380,7 @@ class Problem:
             j = np.flatnonzero(new)
             rows = np.searchsorted(a.indptr[r0 + 1:r1 + 1], p0 + j, side="right") + r0
             columns = a.indices[p0 + j]
-            add = np.abs(data[p0 + j]) > ROUNDOFF_ENTRY * d[rows] * d[columns]
+            add = is_significant(data[p0 + j], rows, columns, d)
             add &= self._isfree[rows] & self._isfree[columns]
             self._kept[p0 + j[add]] = True
             grew = grew or bool(add.any())
