@@ -1,6 +1,8 @@
 """Figures: the solution with its contact pressure, and convergence plots.  A field on a
 mesh with more cells than its axes have pixels is drawn as an image of one sample per
 pixel (Raster), in memory bounded by the picture."""
+import gc
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -220,6 +222,13 @@ def binned_mean(x, y, values, weights, most=300, per_bin=4, chunk=1 << 18):
     return image, (x0, x0 + shape[1] * size, y0, y0 + shape[0] * size)
 
 
+def multiplier_pictures(problem, x):
+    """multiplier_picture of each constraint at x (the values at its quadrature points
+    freed on return, before anything is drawn)."""
+    values = problem.constraint_values(x)
+    return [multiplier_picture(values[c.name]) for c in problem.constraints]
+
+
 def multiplier_picture(v):
     """What a constraint's panel shows of its values v (Problem.constraint_values): along a
     straight contact line ("line", coordinate axis, its coordinates, lambda_N, the
@@ -274,8 +283,7 @@ def plot_solution(problem, result, path, title=""):
     is collective (the multipliers are this rank's elements', reduced: multiplier_picture)
     and only the ranks given a path draw (the fields from the whole mesh and solution,
     which every rank holds).  Returns the path (None without one)."""
-    values = problem.constraint_values(result.x)
-    pictures = [multiplier_picture(values[c.name]) for c in problem.constraints]
+    pictures = multiplier_pictures(problem, result.x)
     if path is None:
         return None
     parts = problem.split(result.x)
@@ -303,13 +311,19 @@ def save_figure(fig, path, title=""):
 
 
 def write_figure(fig, path, **options):
-    """fig.savefig(path, **options), the figure closed; returns the path.  Drawn without
-    NumPy's floating-point warnings: OpenBLAS's gemm kernels can raise the overflow flag
-    on finite data (mplot3d's projection of a surface's faces, np.dot of a 4 x 4 matrix
-    and vectors of size 1), which would print "overflow encountered in dot"."""
+    """fig.savefig(path, **options), the figure closed and the garbage it left collected;
+    returns the path.  Drawn without NumPy's floating-point warnings: OpenBLAS's gemm
+    kernels can raise the overflow flag on finite data (mplot3d's projection of a
+    surface's faces, np.dot of a 4 x 4 matrix and vectors of size 1), which would print
+    "overflow encountered in dot".  The collection: the layout's text parser (pyparsing,
+    in tight_layout and savefig) keeps the exceptions it handles in reference cycles with
+    their tracebacks, whose frames hold every caller's locals up the stack, e.g. a figure
+    hook's arrays of values at all quadrature points (150 MB for the two membranes at 522k
+    unknowns), until Python's cycle collector runs."""
     with np.errstate(over="ignore", under="ignore"):
         fig.savefig(path, **options)
     plt.close(fig)
+    gc.collect()
     return path
 
 

@@ -73,3 +73,29 @@ def test_write_figure_draws_a_3d_surface_without_the_blas_overflow_flag(tmp_path
         fig = figure()
         path = write_figure(fig, tmp_path / "written.png", dpi=50)
     assert path.stat().st_size > 0 and not plt.fignum_exists(fig.number)  # written and closed
+
+
+def test_write_figure_leaves_no_caller_array_held_by_the_layouts_garbage(tmp_path):
+    """A tight layout of mathtext labels leaves the text parser's handled exceptions in
+    reference cycles whose frames hold the callers' locals (matplotlib 3.11 with pyparsing:
+    after plain savefig and close the array below stays alive until the cycle collector
+    runs, which is off here, as it is between its runs); after write_figure it is gone."""
+    import gc
+    import weakref
+    import matplotlib.pyplot as plt
+
+    def draw(path):
+        values = np.linspace(0.0, 1.0, 1000)  # e.g. the multipliers at all quadrature points
+        fig, ax = plt.subplots()
+        ax.plot(values)
+        ax.set_ylabel(r"$\lambda_N$")
+        ax.set_title(r"multiplier $\lambda_N$ (contact pressure)")
+        fig.tight_layout()
+        write_figure(fig, path)
+        return weakref.ref(values)
+    gc.collect()
+    gc.disable()
+    try:
+        assert draw(tmp_path / "f.png")() is None
+    finally:
+        gc.enable()

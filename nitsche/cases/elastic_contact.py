@@ -270,7 +270,7 @@ def figures(problem, result, p, outdir):
     import matplotlib.pyplot as plt
     import matplotlib.tri as mtri
     from nitsche.io import vertex_values
-    from nitsche.plot import cell_colours
+    from nitsche.plot import cell_colours, write_figure
     bodies = [(n, cell_von_mises(problem.by_name[n], result[n], E, nu))
               for n, E, nu in (("u1", p.E1, p.nu1), ("u2", p.E2, p.nu2))]
     x, lam, W = pressure(problem, result)
@@ -297,8 +297,7 @@ def figures(problem, result, p, outdir):
     ax.set_title(f"deformed bodies (displacement x{scale:g}), von Mises stress")
     path = os.path.join(outdir, "deformed_von_mises.png")
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
+    write_figure(fig, path, dpi=130)
     paths.append(path)
 
     fig, ax = plt.subplots(figsize=(6, 4))
@@ -314,8 +313,7 @@ def figures(problem, result, p, outdir):
     ax.grid(alpha=0.3)
     path = os.path.join(outdir, "contact_pressure.png")
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
+    write_figure(fig, path, dpi=130)
     paths.append(path)
     return paths
 

@@ -246,8 +246,7 @@ def study_extra(problem, result, row):
 
 def figures(problem, result, p, outdir):
     import os
-    import matplotlib
-    matplotlib.use("Agg")
+    from nitsche.plot import write_figure  # first: it selects the Agg backend
     import matplotlib.pyplot as plt
     c = cattaneo_mindlin(problem, result, p)
     x, pn, q, W, s = tractions(problem, result, p)
@@ -271,8 +270,7 @@ def figures(problem, result, p, outdir):
     ax.grid(alpha=0.3)
     path = os.path.join(outdir, "friction_tractions.png")
     fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
+    write_figure(fig, path, dpi=130)
     return [path]
 
 

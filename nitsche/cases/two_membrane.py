@@ -260,8 +260,7 @@ def figures(problem, result, p, outdir):
 
 def study_figures(rows, p, degree, outdir):
     """Figure 3: condition numbers of Nitsche and penalty against h, fitted slopes."""
-    import matplotlib
-    matplotlib.use("Agg")
+    from nitsche.plot import write_figure  # first: it selects the Agg backend
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.8, 4.4))
@@ -295,6 +294,5 @@ def study_figures(rows, p, degree, outdir):
     ax.set_title(f"two membranes, P{degree}: conditioning")
     fig.tight_layout()
     path = os.path.join(outdir, "condition.png")
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    write_figure(fig, path, dpi=120)
     return [path]
