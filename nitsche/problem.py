@@ -400,13 +400,15 @@ class Problem:
         number = np.full(self.ndofs, -1, index)
         number[self.free] = np.arange(self.free.size, dtype=index)
         columns = a.indices[self._kept]
-        np.take(number, columns, out=columns)
         ends = np.zeros(self.ndofs + 1, index)  # kept entries up to each row's end, by blocks
         for r0, r1 in row_blocks(a.indptr):
             p0 = a.indptr[r0]
             count = np.zeros(a.indptr[r1] - p0 + 1, index)
             np.cumsum(self._kept[p0:a.indptr[r1]], dtype=index, out=count[1:])
             ends[r0 + 1:r1 + 1] = ends[r0] + count[a.indptr[r0 + 1:r1 + 1] - p0]
+            block = columns[ends[r0]:ends[r1]]
+            block[:] = number[block]  # the columns' free numbers (np.take would convert all
+            # of them to int64 and buffer its output: 60 MB more at the two membranes' 522k)
         self._ff_indices, self._ff_indptr = columns, np.concatenate([ends[:1], ends[self.free + 1]])
 
     def _free_matrix(self, data):
