@@ -24,7 +24,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 STEPS = [("commands", "solve", "solve"), ("commands", "write_vtu", "VTU"),
-         ("commands", "plot_solution", "figure"), ("problem.Problem", "constraint_values", "values"),
+         ("plot", "plot_solution", "figure"), ("problem.Problem", "constraint_values", "values"),
          ("plot", "multiplier_picture", "picture"), ("plot", "binned_mean", "bins"),
          ("plot", "_scalar_panel", "field panel"), ("plot", "_vector_panel", "field panel"),
          ("plot", "save_figure", "savefig")]

@@ -22,9 +22,9 @@ ROOT = os.path.dirname(HERE)
 
 def child(case, level, draws):
     """Run the case with plot_solution drawn `draws` times; print the CPU seconds."""
-    from nitsche import commands
+    from nitsche import plot
     from nitsche.cli import main
-    draw, seconds = commands.plot_solution, []
+    draw, seconds = plot.plot_solution, []
 
     def timed(*args, **kwargs):
         for _ in range(draws):
@@ -32,7 +32,7 @@ def child(case, level, draws):
             path = draw(*args, **kwargs)
             seconds.append(time.process_time() - c0)
         return path
-    commands.plot_solution = timed
+    plot.plot_solution = timed
     with tempfile.TemporaryDirectory() as out:
         main(["run", case, "--level", str(level), "--out", out])
     print(json.dumps(seconds))

@@ -1011,9 +1011,28 @@ class Assembler:
     """Global energy, gradient and Hessian (CSR, fixed pattern) of a sum of terms; residual
     terms add to the gradient (the residual) and Hessian (its Jacobian), not to the energy."""
 
+    PATTERN = ("pattern", "indptr", "indices", "nnz", "scatter")  # what _build_pattern sets
+
     def __init__(self, terms, ndofs):
         self.terms, self.ndofs = terms, ndofs
         self._build_pattern()
+
+    def __getattr__(self, name):
+        """The pattern and the scatters, built again on first use after release()."""
+        if name not in Assembler.PATTERN:
+            raise AttributeError(name)
+        self._build_pattern()
+        return getattr(self, name)
+
+    def release(self):
+        """Drop the pattern, the terms' scatters and the quadratic terms' matrices, which
+        only the Hessian and its energy and gradient need (after a solve, for the outputs
+        that follow it: ~80 MB of the two membranes at 522k unknowns); the next energy,
+        gradient or Hessian builds them again as at set-up (a pattern grown by an interface
+        paired anew: only its current entries)."""
+        for name in Assembler.PATTERN:
+            self.__dict__.pop(name, None)
+        self._quadratics = {}
 
     def _build_pattern(self, keep=None):
         """The CSR pattern of all terms' element matrices (and the entries `keep` = (indptr,

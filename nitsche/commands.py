@@ -12,8 +12,8 @@ import sys
 import time
 
 from . import partition
+from .allocator import freed_memory_returned
 from .io import write_json, write_pvd, write_vtu
-from .plot import plot_convergence, plot_path, plot_solution
 from .pvtu import write_pieces
 from .quantities import evaluate
 from .reactions import reactions
@@ -93,59 +93,60 @@ def run(case, level, degree, p, out, options, nested=True, verbose=False, global
     t0, c0 = time.perf_counter(), time.process_time()
     problem, result, its, failure = solve(case, level, degree, p, options, nested, verbose, engine)
     seconds = time.perf_counter() - t0
-    rank = problem.rank if engine else 0
-    reached = problem.setup.level
-    if failure and reached < level:
-        print(f"nitsche: Newton failed at level {failure['level']} ({failure['reason']}): "
-              f"levels {failure['level']}..{level} were not solved; the report and the files "
-              f"are those of level {reached}, the finest converged one", file=sys.stderr)
-    print(f"{case.name}: level {reached}, degree {degree}, {dofs(problem)} dofs "
-          f"({unknowns(problem)} unknowns); Newton iterations per level {its}")
-    print(result.report())
-    data = dict(case=case.name, level=level, level_reached=reached, degree=degree,
-                dofs=int(dofs(problem)), unknowns=int(unknowns(problem)),
-                converged=result.converged and failure is None, reason=result.reason,
-                level_converged=result.converged, failure=failure,
-                newton_iterations=result.iterations, residuals=result.residuals,
-                nested_iterations=its,
-                energy=result.energy, active_count=result.active_count,
-                contact_measure=result.contact_measure, max_violation=result.max_violation,
-                feasible=result.feasible, seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
-                solver=result.solver, solver_stats=result.solver_stats, ranks=result.ranks,
-                minimum=result.minimum, parameters=vars(p),
-                alpha0_limits=problem.alpha0_limits, constraints=result.constraints,
-                reactions=problem.reactions(result.x) if engine else reactions(problem, result.x))
-    if failure and reached < level:
-        data["reason"] = f"level {failure['level']}: {failure['reason']}"
-    vtu = solution_writer(problem, out) if engine else \
-        lambda prefix, x, vertex_data=None: out.adopt(write_vtu(out.stage_prefix(prefix), problem, x,
-                                                                vertex_data))
-    steps = getattr(problem, "path", None)
-    if steps is not None:
-        data.update(steps=steps.steps, step_cuts=steps.cuts, path_seconds=steps.seconds)
-        write_path(steps, out, vtu, lambda k: steps.at(problem, k),
-                   f"{case.name}, level {reached}, P{degree}")
-    pieces = contextlib.nullcontext()
-    if engine:
-        vtu("solution", result.x)
-        from_pieces = problem.comm.bcast(  # rank 0's decision: every rank must take it
-            whole_outputs and case.outputs_from_pieces and not global_check, root=0)
-        if rank > 0 and not from_pieces:
-            return 0 if data["converged"] else 1
-        data.update(whole_problem_outputs=whole_outputs, outputs_from_pieces=from_pieces)
-        if not whole_outputs:
-            data.update(output_seconds=time.perf_counter() - t0 - seconds,
-                        cpu_seconds=time.process_time() - c0)
-            write_json(out.stage("result.json"), data)
-            return 0 if data["converged"] else 1
-        if from_pieces:  # every rank its part, the hooks' integrals reduced over the ranks
-            pieces = partition.local(problem.comm)
-            problem, result = part(problem, result)
-        else:
-            problem, result = whole(case, problem, result, degree, p)
-    with pieces:
-        return outputs(case, problem, result, p, out, data, vtu, global_check, engine,
-                       f"{case.name}, level {reached}, P{degree}", t0 + seconds, c0)
+    with freed_memory_returned():  # the outputs run once (nitsche.allocator)
+        rank = problem.rank if engine else 0
+        reached = problem.setup.level
+        if failure and reached < level:
+            print(f"nitsche: Newton failed at level {failure['level']} ({failure['reason']}): "
+                  f"levels {failure['level']}..{level} were not solved; the report and the files "
+                  f"are those of level {reached}, the finest converged one", file=sys.stderr)
+        print(f"{case.name}: level {reached}, degree {degree}, {dofs(problem)} dofs "
+              f"({unknowns(problem)} unknowns); Newton iterations per level {its}")
+        print(result.report())
+        data = dict(case=case.name, level=level, level_reached=reached, degree=degree,
+                    dofs=int(dofs(problem)), unknowns=int(unknowns(problem)),
+                    converged=result.converged and failure is None, reason=result.reason,
+                    level_converged=result.converged, failure=failure,
+                    newton_iterations=result.iterations, residuals=result.residuals,
+                    nested_iterations=its,
+                    energy=result.energy, active_count=result.active_count,
+                    contact_measure=result.contact_measure, max_violation=result.max_violation,
+                    feasible=result.feasible, seconds=seconds, solve_seconds=result.seconds, timings=result.timings,
+                    solver=result.solver, solver_stats=result.solver_stats, ranks=result.ranks,
+                    minimum=result.minimum, parameters=vars(p),
+                    alpha0_limits=problem.alpha0_limits, constraints=result.constraints,
+                    reactions=problem.reactions(result.x) if engine else reactions(problem, result.x))
+        if failure and reached < level:
+            data["reason"] = f"level {failure['level']}: {failure['reason']}"
+        vtu = solution_writer(problem, out) if engine else \
+            lambda prefix, x, vertex_data=None: out.adopt(write_vtu(out.stage_prefix(prefix), problem, x,
+                                                                    vertex_data))
+        steps = getattr(problem, "path", None)
+        if steps is not None:
+            data.update(steps=steps.steps, step_cuts=steps.cuts, path_seconds=steps.seconds)
+            write_path(steps, out, vtu, lambda k: steps.at(problem, k),
+                       f"{case.name}, level {reached}, P{degree}")
+        pieces = contextlib.nullcontext()
+        if engine:
+            vtu("solution", result.x)
+            from_pieces = problem.comm.bcast(  # rank 0's decision: every rank must take it
+                whole_outputs and case.outputs_from_pieces and not global_check, root=0)
+            if rank > 0 and not from_pieces:
+                return 0 if data["converged"] else 1
+            data.update(whole_problem_outputs=whole_outputs, outputs_from_pieces=from_pieces)
+            if not whole_outputs:
+                data.update(output_seconds=time.perf_counter() - t0 - seconds,
+                            cpu_seconds=time.process_time() - c0)
+                write_json(out.stage("result.json"), data)
+                return 0 if data["converged"] else 1
+            if from_pieces:  # every rank its part, the hooks' integrals reduced over the ranks
+                pieces = partition.local(problem.comm)
+                problem, result = part(problem, result)
+            else:
+                problem, result = whole(case, problem, result, degree, p)
+        with pieces:
+            return outputs(case, problem, result, p, out, data, vtu, global_check, engine,
+                           f"{case.name}, level {reached}, P{degree}", t0 + seconds, c0)
 
 
 def outputs(case, problem, result, p, out, data, vtu, global_check, engine, title, t_solved, c0):
@@ -163,11 +164,15 @@ def outputs(case, problem, result, p, out, data, vtu, global_check, engine, titl
     extra = getattr(case.module, "report", None)
     if extra:
         data.update(extra(problem, result, p))
+    release = getattr(problem, "release", None)  # what only Newton's matrices use (built
+    if release:  # again if a hook below asks for an energy, gradient or Hessian)
+        release()
     declared = getattr(case.module, "quantities", None)  # quantities(p) -> {name: density}
     found = evaluate(problem, result.x, declared(p)) if declared else {}
     data["quantities"] = {k: s for k, (s, _, _) in found.items()}
     if not engine:  # (on MPI ranks the pieces are written: without the declared quantities)
         vtu("solution", result.x, {k: (m, v) for k, (_, m, v) in found.items()})
+    from .plot import plot_solution  # (matplotlib loaded for the figures, not through the solve)
     png = plot_solution(problem, result, None if out is None else out.stage("solution.png"), title)
     hook = getattr(case.module, "figures", None)  # figures(problem, result, p, folder) -> paths
     figures = hook(problem, result, p, None if out is None else out.staging) if hook else []
@@ -205,6 +210,7 @@ def write_path(steps, out, vtu, at, title):
         series.append((record["time"], vtu(f"solution_{k + 1:04d}", at(k))))
     if out is not None:
         out.adopt([write_pvd(out.stage("solution.pvd"), series)])
+        from .plot import plot_path
         out.adopt([plot_path(steps.steps, out.stage("reactions.png"), title)])
 
 
@@ -221,6 +227,7 @@ def study(case, levels, degree, p, out, options, start=0):
     data = dict(case=case.name, degree=degree, parameters=vars(p),
                 expected_rate=case.rate.get(degree), levels=rows, failure=failure)
     if rows:
+        from .plot import plot_convergence
         out.adopt([plot_convergence(rows, out.stage("convergence.png"), data["expected_rate"],
                                     f"{case.name}, P{degree}")])
         hook = getattr(case.module, "study_figures", None)  # study_figures(rows, p, degree, folder)

@@ -411,6 +411,13 @@ class Problem:
             # of them to int64 and buffer its output: 60 MB more at the two membranes' 522k)
         self._ff_indices, self._ff_indptr = columns, np.concatenate([ends[:1], ends[self.free + 1]])
 
+    def release(self):
+        """Drop what only the Newton matrices use (Assembler.release, and the free block's
+        kept entries and structure: with them ~120 MB of the two membranes at 522k
+        unknowns), for the outputs that follow a solve; built again on first use."""
+        self.assembler.release()
+        self._kept = self._ff_indices = self._ff_indptr = None
+
     def _free_matrix(self, data):
         """The free-free block of the CSR matrix with the assembler's pattern and `data`, on
         its kept entries (the significant ones of every matrix so far: the same matrix to
@@ -419,6 +426,8 @@ class Problem:
         data's first entries (data is overwritten: no second array of the values beside it,
         56 MB at the two membranes' 522k unknowns), or, where it keeps less than half of
         them, copied out of it, so that data can go."""
+        if self._kept is None:  # (after release)
+            self._reset_kept()
         if self._admit(data) or self._ff_indices is None:
             self._free_block()
         values = compacted(data, self._kept)

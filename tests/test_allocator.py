@@ -91,3 +91,34 @@ def test_release_gives_a_kept_free_block_back():
     out = subprocess.run([sys.executable, "-c", RELEASE], env=environ, capture_output=True, text=True,
                          check=True).stdout.split()
     assert out[0] == "True" and int(out[1]) > 0.9 * (64 << 20)  # the freed block's pages
+
+
+RETURNED = """
+import ctypes, resource
+import nitsche
+from nitsche.allocator import freed_memory_returned, keep_freed_memory
+keep_freed_memory()
+libc = ctypes.CDLL(None)
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+n = 64 << 20
+
+def faults():
+    a = libc.malloc(n); ctypes.memset(a, 1, n); libc.free(a)    # a large block, freed
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    b = libc.malloc(n); ctypes.memset(b, 1, n); libc.free(b)    # the next one, touched
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+with freed_memory_returned():
+    inside = faults()
+print(inside, faults())
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_within_freed_memory_returned_a_freed_block_goes_back_and_after_it_is_kept_again():
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
+    inside, after = map(int, subprocess.run([sys.executable, "-c", RETURNED], env=environ, capture_output=True,
+                                            text=True, check=True).stdout.split())
+    pages = (64 << 20) // 4096
+    assert inside > 0.5 * pages, inside   # unmapped when freed: every page faulted anew
+    assert after < 0.05 * pages, after    # kept for the next one again

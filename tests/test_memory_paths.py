@@ -436,3 +436,34 @@ def test_the_fields_of_one_mesh_share_its_inverse_jacobians():
     own = t.run("gradient", x)
     for a, b in zip(shared, own):
         np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("name, level, sets", [("two-membrane", 2, {}), ("obstacle", 2, {}),
+                                               ("membrane-solid", 0, {"cells": "tet"})])
+def test_a_released_problem_drops_its_newton_structures_and_builds_them_again_equal(name, level, sets):
+    """Problem.release (after a solve, for the outputs) drops the pattern, the scatters,
+    the quadratic terms' matrices and the free block's structure; the next energy,
+    gradient and Newton system build them again and equal those before (bitwise; the
+    Newton matrix on its significant entries), and Newton's method converges from there."""
+    problem = problem_of(name, level, 1, sets)
+    result = problem.minimize()
+    x = result.x + 1e-3 * np.random.default_rng(3).standard_normal(problem.ndofs)
+    E, g, A = problem.newton_system(x)
+    A = A.copy()
+    energy, gradient = problem.energy(x), problem.gradient(x)
+    problem.release()
+    a = problem.assembler
+    assert not any(k in a.__dict__ for k in a.PATTERN) and not a._quadratics
+    assert problem._kept is None and problem._ff_indices is None
+    assert problem.energy(x) == energy
+    np.testing.assert_array_equal(problem.gradient(x), gradient)
+    E2, g2, A2 = problem.newton_system(x)
+    assert E2 == E
+    np.testing.assert_array_equal(g2, g)
+    # the kept entries start again from this matrix's significant ones: the same values
+    # there, and what the earlier matrices kept besides is zero or round-off here
+    assert (A2 != A.multiply(A2 != 0)).nnz == 0 and A2.nnz <= A.nnz
+    assert abs(A - A2).max() <= linalg.ROUNDOFF_ENTRY * abs(A).max()
+    problem.release()
+    again = problem.minimize(result.x)
+    assert again.converged and again.energy == problem.energy(result.x)

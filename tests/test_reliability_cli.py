@@ -11,7 +11,7 @@ import meshio
 import numpy as np
 import pytest
 
-from nitsche import commands
+from nitsche import commands, plot
 from nitsche.case import Case
 from nitsche.cases import get
 from nitsche.cli import main
@@ -132,7 +132,7 @@ def test_an_interruption_while_plotting_leaves_the_previous_run(previous, monkey
 
     def interrupted(*a, **k):
         raise exc()
-    monkeypatch.setattr(commands, "plot_solution", interrupted)
+    monkeypatch.setattr(plot, "plot_solution", interrupted)
     if exc is KeyboardInterrupt:
         assert main(["run", "obstacle", "--level", "2", "--out", str(previous)]) == 130
         err = capsys.readouterr().err.strip().splitlines()
@@ -147,7 +147,7 @@ def test_an_interruption_while_plotting_leaves_the_previous_run(previous, monkey
 def test_a_new_folder_is_removed_when_the_run_is_interrupted(tmp_path, monkeypatch):
     def interrupted(*a, **k):
         raise KeyboardInterrupt
-    monkeypatch.setattr(commands, "plot_solution", interrupted)
+    monkeypatch.setattr(plot, "plot_solution", interrupted)
     assert main(["run", "obstacle", "--level", "0", "--out", str(tmp_path / "a" / "b")]) == 130
     assert not (tmp_path / "a").exists()
 

@@ -280,6 +280,30 @@ def test_arpack_estimates_are_reproducible():
     assert condition_number(N, dense_limit=10, tol=1e-2) == condition_number(N, dense_limit=10, tol=1e-2)
 
 
+def test_the_condition_number_is_that_of_the_non_zero_entries_and_leaves_the_matrix_alone():
+    """A Newton matrix's structure holds exact zeros (inactive terms): nonzero_entries is
+    the matrix without them (as eliminate_zeros, also for empty rows and an empty matrix),
+    copies only the non-zero entries and leaves its argument as it was."""
+    from nitsche.conditioning import nonzero_entries
+    n = 300
+    A = sp.diags([-np.ones(n - 1), 2.0 + np.linspace(0, 1, n), -np.ones(n - 1)], [-1, 0, 1]).tocsr()
+    Z = A.copy()
+    Z.data[np.random.default_rng(0).random(Z.nnz) < 0.3] = 0.0  # explicit zeros,
+    Z.data[Z.indptr[7]:Z.indptr[9]] = 0.0  # rows 7 and 8 with nothing but zeros
+    before = (Z.data.copy(), Z.indices.copy(), Z.indptr.copy())
+    B, C = nonzero_entries(Z), Z.copy()
+    C.eliminate_zeros()
+    assert B.nnz == C.nnz < Z.nnz and np.array_equal(B.indptr, C.indptr)
+    assert np.array_equal(B.indices, C.indices) and np.array_equal(B.data, C.data)
+    assert all(np.array_equal(a, b) for a, b in zip(before, (Z.data, Z.indices, Z.indptr)))
+    assert nonzero_entries(sp.csr_matrix((4, 4))).indptr.tolist() == [0] * 5
+    full = A.copy()
+    full.data[::7] = 0.0
+    kept = full.copy()
+    kept.eliminate_zeros()
+    assert condition_number(full, dense_limit=10, tol=1e-2) == condition_number(kept, dense_limit=10, tol=1e-2)
+
+
 def test_a_global_limit_of_a_multiplier_not_differentiable_at_the_start_is_a_clear_error():
     """|grad u| has no derivative at u = 0 (JAX gives NaN): the global stability limit
     (--global-check) names the constraint instead of failing inside the eigensolver."""
