@@ -6,9 +6,9 @@ import sys
 import pytest
 
 TOUCH = """
-import ctypes, resource, sys
+import contextlib, ctypes, resource, sys
 import nitsche
-from nitsche.allocator import keep_freed_memory
+from nitsche.allocator import freed_memory_returned, keep_freed_memory
 if sys.argv[1:2] == ["keep"]:
     keep_freed_memory()
 libc = ctypes.CDLL(None)
@@ -23,21 +23,32 @@ if sys.argv[2:] == ["thread"]:  # ... by another thread (the finest level built 
     t = threading.Thread(target=freed); t.start(); t.join()
 else:
     freed()
-before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-b = libc.malloc(n); ctypes.memset(b, 1, n)                      # the next one, touched
-print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+
+def touched():
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+    b = libc.malloc(n); ctypes.memset(b, 1, n); libc.free(b)    # the next one, touched
+    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
+if sys.argv[2:] == ["returned"]:  # within freed_memory_returned, then after it
+    with freed_memory_returned():
+        freed()
+        print(touched())
+    freed()
+print(touched())
 """
 
 
-def faults(keep=True, thread=False, **env):
+def faults(keep=True, thread=False, returned=False, **env):
     """Minor page faults of touching a 64 MB block after freeing one (thread: freed by
     another thread), in a fresh process that imports nitsche and (keep) calls
-    keep_freed_memory as the `nitsche` command does."""
+    keep_freed_memory as the `nitsche` command does; returned: [within
+    freed_memory_returned, after it]."""
     environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
-    out = subprocess.run([sys.executable, "-c", TOUCH, "keep" if keep else "-"] + (["thread"] if thread else []),
+    mode = ["thread"] if thread else ["returned"] if returned else []
+    out = subprocess.run([sys.executable, "-c", TOUCH, "keep" if keep else "-"] + mode,
                          env=dict(environ, **env), capture_output=True,
                          text=True, check=True)
-    return int(out.stdout.split()[-1])
+    counts = [int(c) for c in out.stdout.split()]
+    return counts if returned else counts[-1]
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
@@ -93,32 +104,11 @@ def test_release_gives_a_kept_free_block_back():
     assert out[0] == "True" and int(out[1]) > 0.9 * (64 << 20)  # the freed block's pages
 
 
-RETURNED = """
-import ctypes, resource
-import nitsche
-from nitsche.allocator import freed_memory_returned, keep_freed_memory
-keep_freed_memory()
-libc = ctypes.CDLL(None)
-libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
-libc.free.argtypes = [ctypes.c_void_p]
-n = 64 << 20
-
-def faults():
-    a = libc.malloc(n); ctypes.memset(a, 1, n); libc.free(a)    # a large block, freed
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    b = libc.malloc(n); ctypes.memset(b, 1, n); libc.free(b)    # the next one, touched
-    return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before
-with freed_memory_returned():
-    inside = faults()
-print(inside, faults())
-"""
-
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
 def test_within_freed_memory_returned_a_freed_block_goes_back_and_after_it_is_kept_again():
-    environ = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_") and k != "GLIBC_TUNABLES"}
-    inside, after = map(int, subprocess.run([sys.executable, "-c", RETURNED], env=environ, capture_output=True,
-                                            text=True, check=True).stdout.split())
     pages = (64 << 20) // 4096
+    inside, after = faults(returned=True)
     assert inside > 0.5 * pages, inside   # unmapped when freed: every page faulted anew
     assert after < 0.05 * pages, after    # kept for the next one again
+    assert faults(keep=False, returned=True)[1] > 0.5 * pages  # the library alone: malloc's own
