@@ -961,7 +961,7 @@ class GradientSum:
     given call by call in increasing element order (add(first element, g)): the sums of
     one bincount of all of them over the map D (E, k), bit for bit, without an array of all
     g_e nor an int64 copy of all of D (50 MB for the two membranes at 522k).  The g_e are
-    gathered with their dofs in a buffer of at most 2 n entries (all of them for a term of
+    gathered with their dofs in a buffer of at most n entries (all of them for a term of
     fewer: one bincount), after [0, n), which holds the running sums; a full buffer is
     summed by one bincount, which adds in array order: the running sum of each dof first,
     then its new entries, as one bincount of all would."""
@@ -969,7 +969,7 @@ class GradientSum:
     def __init__(self, D, n):
         E, self.k = D.shape
         self.D, self.n = D, n
-        self.step = max(1, min(E, 2 * n // max(self.k, 1)))  # elements per bincount
+        self.step = max(1, min(E, n // max(self.k, 1)))  # elements per bincount
         self.prefix = n if E > self.step else 0  # the running sums, where more than one bincount
         self.index = np.empty(self.prefix + self.step * self.k, np.intp)
         self.index[:self.prefix] = np.arange(self.prefix)
