@@ -164,9 +164,7 @@ def outputs(case, problem, result, p, out, data, vtu, global_check, engine, titl
     extra = getattr(case.module, "report", None)
     if extra:
         data.update(extra(problem, result, p))
-    release = getattr(problem, "release", None)  # what only Newton's matrices use (built
-    if release:  # again if a hook below asks for an energy, gradient or Hessian)
-        release()
+    problem.release()  # what only Newton's matrices use (built again if a hook below asks)
     declared = getattr(case.module, "quantities", None)  # quantities(p) -> {name: density}
     found = evaluate(problem, result.x, declared(p)) if declared else {}
     data["quantities"] = {k: s for k, (s, _, _) in found.items()}
