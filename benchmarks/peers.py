@@ -265,10 +265,11 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
         problem_k = result_k = None  # not held through the next level (nested holds its own)
     t["setup"] = time.perf_counter() - t_all - newton_seconds  # (wall: set-up beside the solves is not in it)
     t["total"] = time.perf_counter() - t_all
+    solve_peak_mb = vmhwm_mb()  # (before the fields' lists below)
     parts = prob.split(res.x)
     names = [f.name for f in prob.fields] if problem in PROBLEMS else []  # (not membrane-solid)
     return dict(unknowns=int(prob.free.size), iterations=sum(its), iterations_per_level=its, converged=True,
-                finest_iterations=its[-1], times=t, own_energy=res.energy,
+                finest_iterations=its[-1], times=t, own_energy=res.energy, solve_peak_mb=solve_peak_mb,
                 own_active=res.active_count, fields=[np.asarray(parts[n]).tolist() for n in names] or None,
                 levels=levels, mesh=prob.fields[0].mesh)
 
@@ -456,8 +457,10 @@ def run_ngsolve(problem, level, alpha0):
                 mesh=mesh, solver="ngsolve sparsecholesky")
 
 
-def run_linear(problem, level, alpha0):
-    """One plain assembly of the unconstrained stiffness (per field) and one Cholesky solve."""
+def run_linear(problem, level, alpha0, mesh_spec=None):
+    """One plain assembly of the unconstrained stiffness (per field) and one Cholesky solve;
+    on the case's mesh of this level, or (mesh_spec: the sizes of a 2D chain) on the
+    n x n tensor mesh of its last size, made at once (tensor_mesh: as a user would)."""
     import scipy.sparse as sp
     from skfem import Basis, BilinearForm, LinearForm, asm
     from skfem.helpers import dot, grad
@@ -468,7 +471,7 @@ def run_linear(problem, level, alpha0):
     t_all, c_all = time.perf_counter(), time.process_time()
     t = dict(setup=0.0, assembly=0.0, solve=0.0, line_search=0.0, compile=0.0)
     t0 = time.perf_counter()
-    mesh = case_mesh(problem, level)
+    mesh = case_mesh(problem, level) if mesh_spec is None else tensor_mesh(problem, mesh_spec[-1])
     basis = Basis(mesh, p1(mesh)[0])
     free = basis.complement_dofs(basis.get_dofs())
     t["setup"] += time.perf_counter() - t0
@@ -494,6 +497,13 @@ def run_linear(problem, level, alpha0):
     return dict(unknowns=int(A.shape[0]), iterations=1, times=t, mesh=None, solver=lin.name)
 
 
+def vmhwm_mb():
+    """The peak resident memory of this process so far, MB (VmHWM: this exec'd image only;
+    ru_maxrss of a child on Linux also counts the parent's memory at fork time)."""
+    with open("/proc/self/status") as fh:
+        return next(int(l.split()[1]) for l in fh if l.startswith("VmHWM")) / 1024.0
+
+
 def worker(args):
     code, problem, level, alpha0 = args.worker[0], args.worker[1], int(args.worker[2]), float(args.worker[3])
     spec = [int(n) for n in args.worker[4].split(",")] if len(args.worker) > 4 else None
@@ -502,16 +512,14 @@ def worker(args):
     except ImportError:
         pass
     fn = dict(ours=run_ours, skfem=run_skfem, ngsolve=run_ngsolve, linear=run_linear)[code]
-    out = fn(problem, level, alpha0, spec) if code == "ours" else fn(problem, level, alpha0)
+    out = fn(problem, level, alpha0, spec) if code in ("ours", "linear") else fn(problem, level, alpha0)
+    out.setdefault("solve_peak_mb", vmhwm_mb())  # the solve's own peak: before the referee's energy below
     mesh = out.pop("mesh")
     if out.get("fields"):
         fields = [np.asarray(u) for u in out.pop("fields")]
         out["energy"], out["active"] = referee(problem, mesh, alpha0, fields)
     out["code"] = code
-    # peak resident memory of this process (VmHWM: this exec'd image only; ru_maxrss of a
-    # child on Linux also counts the parent's memory at fork time)
-    with open("/proc/self/status") as fh:
-        out["peak_mb"] = next(int(l.split()[1]) for l in fh if l.startswith("VmHWM")) / 1024.0
+    out["peak_mb"] = vmhwm_mb()
     with open(args.out, "w") as fh:
         json.dump(out, fh)
 
