@@ -94,7 +94,7 @@ def child(case, size, ordering):
         fh.write("5")  # VmHWM := VmRSS
     base = vm("VmRSS")
     lin = Cholmod(ordering="amd" if ordering == "ours" else ordering, geometric=ordering == "ours")
-    lin.points = points if ordering == "ours" else None
+    lin.coordinates = (lambda: points) if ordering == "ours" else None
     t = cpu()
     lin.analyzed = NonzeroPattern(A)
     lin._analyze(A)

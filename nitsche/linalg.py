@@ -10,8 +10,11 @@ for large and 3D problems.  Non-symmetric Newton matrices (residual terms: Coulo
 friction, theta != 1) take `superlu` (LU with partial pivoting) or `gmres` (GMRES
 preconditioned by an incomplete LU, for large 3D problems).
 """
+import functools
+import hashlib
 import os
 import warnings
+import weakref
 
 import numpy as np
 import scipy.sparse as sp
@@ -76,7 +79,8 @@ class Cholmod:
     56 MB for the two membranes at 522k unknowns).
 
     The fill-reducing ordering: CHOLMOD's `ordering` method, or, with geometric=True and
-    the free dofs' coordinates from prepare(problem), a geometric nested dissection
+    the free dofs' coordinates from prepare(problem) (`coordinates`: computed for each
+    analysis, not held beside the factor), a geometric nested dissection
     (nitsche.ordering): the factor is then that of P A P^T (its lower triangle, read from
     A's), and a solve x = P^T L^-T L^-1 P b."""
     name = "cholmod"
@@ -85,7 +89,7 @@ class Cholmod:
         self.factor = self.factored = None
         self.keep_factored, self.prune = True, True
         self.ordering, self.geometric = ordering, geometric
-        self.points = self.perm = None  # the free dofs' coordinates; the nested dissection's order
+        self.coordinates = self.perm = None  # () -> the free dofs' points; the nested dissection's order
         self.reordered = None  # with perm: P A P^T's lower triangle, its values positions in A.data
         self.reuse_iterations, self.stale = reuse_iterations, False
         self.factorizations, self.iterations, self.analyses = 0, [], 0
@@ -93,18 +97,19 @@ class Cholmod:
 
     def prepare(self, problem):
         if self.geometric:
-            self.points = dof_coordinates(problem)
+            self.coordinates = functools.partial(dof_coordinates, problem)
 
     def _analyze(self, A):
         """The symbolic analysis of A on the analyzed entries: ordered by CHOLMOD, or by
         nested dissection of the dofs' points (`reordered`: the permuted lower triangle's
         pattern, its entries' positions in A.data)."""
         given = self.analyzed.part(A)
-        if self.points is None or len(self.points) != A.shape[0]:  # (points of another problem)
+        points = self.coordinates() if self.coordinates else None
+        if points is None or len(points) != A.shape[0]:  # (points of another problem)
             self.perm = None
             self.factor = analyze(given, ordering_method=self.ordering)
         else:
-            self.perm = nested_dissection(given, self.points)
+            self.perm = nested_dissection(given, points)
             self.reordered = permuted_lower(given, self.perm)
             if not self.analyzed.all:
                 kept = np.flatnonzero(self.analyzed.kept).astype(index_type(A.data.size))
@@ -195,18 +200,23 @@ class NonzeroPattern:
     union."""
 
     def __init__(self, A, before=None, prune=True):
-        self.indptr, self.indices = A.indptr, A.indices
-        kept = significant(A) if prune else np.ones(A.nnz, bool)
-        if before is not None and before.same_pattern(A):
-            kept |= before.kept
-        self.kept, self.all = kept, bool(kept.all())
+        self.arrays = (weakref.ref(A.indptr), weakref.ref(A.indices))  # (not held: see same_pattern)
+        self.digest = pattern_digest(A)
+        kept = significant(A) if prune else None
+        if kept is not None and before is not None and before.same_pattern(A):
+            kept = None if before.all else kept | before.kept  # (the union with the earlier ones)
+        self.all = kept is None or bool(kept.all())
+        self.kept = None if self.all else kept  # (None: all of them)
         if not self.all:  # (else part() is A itself)
             self.kept_indices = A.indices[kept]
             self.kept_indptr = np.concatenate([[0], np.cumsum(kept)])[A.indptr].astype(A.indptr.dtype)
 
     def same_pattern(self, A):
-        return (A.indptr is self.indptr and A.indices is self.indices) or (
-            np.array_equal(A.indptr, self.indptr) and np.array_equal(A.indices, self.indices))
+        """Whether A has the analyzed pattern: its index arrays themselves, or equal ones (by
+        their digest: the analyzed arrays are not kept alive, so that a Newton matrix's
+        structure that grew is freed once replaced, 35 MB of the two membranes at 1M)."""
+        indptr, indices = (ref() for ref in self.arrays)
+        return (A.indptr is indptr and A.indices is indices) or pattern_digest(A) == self.digest
 
     def holds(self, A):
         """Whether A has this pattern and no significant entry outside the kept entries."""
@@ -218,6 +228,15 @@ class NonzeroPattern:
             return A
         return sp.csc_matrix((A.data[self.kept], self.kept_indices, self.kept_indptr),
                              shape=A.shape, copy=False)
+
+
+def pattern_digest(A):
+    """A digest of a compressed sparse matrix's shape and index arrays (equal patterns, equal
+    digests; BLAKE2b: a collision is out of reach)."""
+    h = hashlib.blake2b(repr((A.shape, A.indptr.dtype.str, A.indices.dtype.str)).encode(), digest_size=32)
+    h.update(np.ascontiguousarray(A.indptr))
+    h.update(np.ascontiguousarray(A.indices))
+    return h.digest()
 
 
 def row_blocks(indptr, entries=2 ** 20):

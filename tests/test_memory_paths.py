@@ -139,8 +139,8 @@ def test_the_free_block_in_int32_is_the_free_rows_and_columns_on_their_significa
     x = problem.initial(None) + 1e-2 * np.random.default_rng(5).standard_normal(problem.ndofs)
     _, _, data = problem.assembler.evaluate(x)
     full = problem.assembler.matrix(data.copy())[problem.free][:, problem.free]
-    A = problem._free_matrix(data)  # (data compacted in place: A's values a view of it, or a copy of less than half)
-    assert np.shares_memory(A.data, data) == (2 * A.nnz >= data.size)
+    A = problem._free_matrix(data)  # (data consumed: compacted in place and shrunk to A's values)
+    assert np.shares_memory(A.data, data) and data.size == A.nnz
     assert problem._kept.dtype == bool and problem._ff_indptr.dtype == np.int32
     assert A.indices.dtype == np.int32 and A.indptr.dtype == np.int32
     kept = significant(full)
@@ -373,6 +373,57 @@ def test_the_free_values_are_compacted_in_place(block):
     assert np.shares_memory(out, data)
     np.testing.assert_array_equal(out, expected)
     assert compacted(np.ones(5), np.zeros(5, bool)).size == 0
+
+
+def test_an_array_is_shrunk_in_place_to_its_first_entries():
+    """shrunk(data, k) is data[:k] in data's own memory (the same array, no copy: realloc
+    shrinks in place), and a copy where data is a view or NumPy refuses (weak references)."""
+    import weakref
+    from nitsche.problem import shrunk
+    data = np.arange(10.0)
+    out = shrunk(data, 4)
+    assert out is data and data.flags.owndata
+    np.testing.assert_array_equal(out, [0.0, 1.0, 2.0, 3.0])
+    assert shrunk(data, 0).size == 0
+    base = np.arange(10.0)
+    view = base[2:]
+    out = shrunk(view, 3)
+    assert not np.shares_memory(out, base) and base.size == 10
+    np.testing.assert_array_equal(out, [2.0, 3.0, 4.0])
+    watched = np.arange(10.0)
+    ref = weakref.ref(watched)
+    out = shrunk(watched, 2)
+    assert out is not watched and ref() is watched and watched.size == 10
+    np.testing.assert_array_equal(out, [0.0, 1.0])
+
+
+@pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
+def test_the_analyzed_pattern_does_not_hold_the_matrix_structure():
+    """Cholmod's analyzed pattern refers to its matrix's index arrays weakly: a Newton
+    matrix's structure that grew is freed once replaced.  It still knows its pattern in
+    equal arrays (a digest), and a matrix of another pattern is a new analysis."""
+    import gc
+    import weakref
+    import scipy.sparse as sp
+    from nitsche.linalg import Cholmod, NonzeroPattern
+    n = 30
+    A = (sp.diags([-np.ones(n - 1), 4 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1])).tocsc()
+    b = np.ones(n)
+    lin = Cholmod()
+    lin.prune = False
+    lin.solve(A, b)
+    indices = weakref.ref(A.indices)
+    same = sp.csc_matrix((2 * A.data, A.indices.copy(), A.indptr.copy()), shape=A.shape)
+    A = None
+    gc.collect()
+    assert indices() is None  # (not held by lin.analyzed)
+    assert lin.analyzed.holds(same) and lin.analyzed.kept is None
+    lin.solve(same, b)
+    assert lin.analyses == 1 and lin.factorizations == 2
+    other = (same + sp.eye(n, k=2) + sp.eye(n, k=-2)).tocsc()
+    assert not NonzeroPattern(same).same_pattern(other)
+    x = lin.solve(other, b)
+    assert lin.analyses == 2 and np.allclose(other @ x, b)
 
 
 def test_a_constraint_gives_its_points_on_demand_where_its_measure_can():
