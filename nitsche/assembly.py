@@ -373,9 +373,15 @@ class Term:
         self.layout = self._record(fs)
         if not self.layout:
             raise ConstantDensity(f"{label} does not depend on any field")
-        W = measure.weights if like is None else None
-        self.nel, self.nq = W.shape if like is None else (like.nel, like.nq)
-        self.nonnegative_weights = bool(np.all(W >= 0)) if like is None else like.nonnegative_weights
+        # W[e, q] = d[e] w_q on affine cells: d held per element, w_q in the kernels (weight_rule)
+        factors = getattr(measure, "separable_weights", None) if like is None else None
+        W = (factors[0] if factors is not None else measure.weights) if like is None else None
+        self.weight_rule = (tuple(factors[1].tolist()) if factors is not None else None) if like is None \
+            else like.weight_rule
+        self.nel, self.nq = ((W.shape[0], len(self.weight_rule)) if factors is not None else W.shape) \
+            if like is None else (like.nel, like.nq)
+        self.nonnegative_weights = bool(np.all(W >= 0) and (factors is None or np.all(factors[1] >= 0))) \
+            if like is None else like.nonnegative_weights
         self.has_normal = measure.normals is not None if like is None else like.has_normal
         self.fields = [by_name[name] for name, _, _ in self.layout]
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
@@ -525,7 +531,8 @@ class Term:
         if not self.regenerable:
             return
         m, again = self.measure, self._again
-        given = dict(W=lambda: m.weights, h=lambda: m.h, x=lambda: np.moveaxis(m.points, 0, -1))
+        given = dict(W=lambda: m.weights if self.weight_rule is None else m.separable_weights[0],
+                     h=lambda: m.h, x=lambda: np.moveaxis(m.points, 0, -1))
         for k, a in self.data.items():
             if a is not None:
                 a.release(again(given[k]))
@@ -553,11 +560,15 @@ class Term:
         a = self.data[name]
         if a is None and name == "x" and self.points_on_demand:
             return self._again(lambda: np.moveaxis(self.measure.points, 0, -1))()
+        if name == "W" and self.weight_rule is not None:  # W[e, q] = d[e] w_q, formed here
+            return np.asarray(a)[:, None] * np.array(self.weight_rule)
         return np.asarray(a) if a is not None else np.broadcast_to(np.zeros((1, self.nq, self.dim)),
                                                                   (self.nel, self.nq, self.dim))
 
     # read on the host: on the CPU read-only views of the device data, elsewhere copies
     W = property(lambda self: self._view("W"), doc="W[e, q]: quadrature weight x Jacobian")
+    weights = property(lambda self: np.asarray(self.data["W"]),
+                       doc="the weights as the kernels take them: W[e, q], or d[e] (weight_rule: W = d w_q)")
     x = property(lambda self: self._view("x"), doc="the quadrature points x[e, q, :]")
     n = property(lambda self: self._view("n"), doc="the outward normals n[e, q, :]")
     h = property(lambda self: self._view("h"), doc="the mesh size h[e] of the cell that owns each element")
@@ -727,18 +738,19 @@ class Term:
             return self._kernels[kind, chunk]
         key = (kind, self.residual, fingerprint(self.pointwise), tuple(self.layout), tuple(self.kept), chunk,
                tuple((a.shape[0] == 1,) + a.shape[1:] for a in self.tables), tuple(self.maps),
-               self.dim, self.has_normal, self.parameter_names)
+               self.dim, self.has_normal, self.parameter_names, self.weight_rule)
         coupling = self.coupling if kind == "full" else None
 
         def compiled():
             fn = _build(kind, self._point_fn(), self.sizes, chunk, self.nq, coupling, self.residual,
-                        self.maps, self.kept)
+                        self.maps, self.kept, self.weight_rule)
             args = [jax.ShapeDtypeStruct((1 if a.shape[0] == 1 else chunk,) + a.shape[1:], jnp.float64)
                     for a in self.tables]
             args += [jax.ShapeDtypeStruct((chunk, k), jnp.float64) for _, k in self.sizes]
             point = (self.nq, self.dim)
+            weights = (self.nq,) if self.weight_rule is None else ()  # W (chunk, nq), or d (chunk,)
             args += [jax.ShapeDtypeStruct((chunk,) + shape, jnp.float64)  # W, x, n, h, alpha0, parameters
-                     for shape in ((self.nq,), point, point, (), (), (self.parameter_index.size,))]
+                     for shape in (weights, point, point, (), (), (self.parameter_index.size,))]
             return _compile(fn, args, kernel_store.digest(key))
         self._kernels[kind, chunk] = _cached(key, compiled)
         return self._kernels[kind, chunk]
@@ -855,7 +867,10 @@ def mapped(R, J, spec, kept, chunk, nq):
     return jnp.concatenate(blocks, axis=2)[:, :, np.array(kept)]
 
 
-def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps=None, kept=None):
+def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps=None, kept=None,
+           weight_rule=None):
+    """The kernel of `kind` on calls of `chunk` elements; weight_rule (w_q): the weights come
+    as d (chunk,), W[e, q] = d[e] w_q (Term.weight_rule), else as W (chunk, nq)."""
     m = sum(mf for mf, _ in sizes)
     first = derivative(point_fn, residual)
     nf = len(sizes)
@@ -867,6 +882,8 @@ def _build(kind, point_fn, sizes, chunk, nq, coupling=None, residual=False, maps
         tables, Js, us, rest = a[:nf], iter(a[nf:nf + ng]), a[nf + ng:2 * nf + ng], a[2 * nf + ng:]
         Ts = [T if spec is None else mapped(T, next(Js), spec, k, chunk, nq)
               for T, spec, k in zip(tables, maps, kept or [None] * nf)]
+        if weight_rule is not None:  # W[e, q] = d[e] w_q: the product the measure's weights are
+            rest = (rest[0][:, None] * jnp.asarray(weight_rule),) + tuple(rest[1:])
         return Ts, us, rest
 
     def value_and_first(z, *rest):

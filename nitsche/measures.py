@@ -175,6 +175,12 @@ class Measure:
         self.basis = None
 
     @property
+    def separable_weights(self):
+        """(d (e,), w (q,)) with W[e, q] = d[e] * w[q] exactly, where the weights factor so
+        (the terms then hold d, not W); None here."""
+        return None
+
+    @property
     def weights(self):
         """W[e, q] = quadrature weight x Jacobian (x the measure's weight w(x))."""
         W = np.asarray(self.basis.dx)
@@ -271,6 +277,14 @@ class Cells(Measure):
         J = np.abs(mapping.detA)[:, None] if self.affine else np.abs(mapping.detDF(X))
         W = self._mine(J) * w[None, :]
         return W if self.weight is None else weighted(W, self.weight, self.points, self.kind)
+
+    @property
+    def separable_weights(self):
+        """On affine cells without a weight function, W[e, q] = |det A_e| w_q: (|det A_e|,
+        w_q), the product that `weights` forms; else None."""
+        if not self.affine or self.weight is not None:
+            return None
+        return self._mine(np.abs(self.mesh.mapping().detA)), np.asarray(self.reference_quadrature()[1], float)
 
     @property
     def points(self):

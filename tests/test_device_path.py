@@ -20,7 +20,7 @@ def host_outputs(t, kind, x, elements=None):
     """A term's kernel outputs as the earlier path computed them: per call, NumPy slices of
     the per-element data (the last call padded by repeating its last element) and x[dofs]."""
     e = np.arange(t.nel) if elements is None else np.asarray(elements)
-    per_element = [x[d] for d in t.field_dofs] + [t.W, t.x, t.n, t.h, t.alpha0]
+    per_element = [x[d] for d in t.field_dofs] + [t.weights, t.x, t.n, t.h, t.alpha0]
     theta = t.parameters.values[t.parameter_index]
     outs = []
     for s, chunk in t.blocks(len(e)):
@@ -158,8 +158,8 @@ def test_calls_take_multiples_of_8_elements():
 
 def test_per_element_data_are_held_once():
     """A term keeps its per-element floating-point data only on the device (no NumPy copy
-    of its own; on the CPU W, x, h read on the host are read-only views of the device
-    buffers), and on_device's aligned copy is aliased by device_put on the CPU."""
+    of its own; on the CPU its weights, x, h read on the host are read-only views of the
+    device buffers), and on_device's aligned copy is aliased by device_put on the CPU."""
     case = get("obstacle")
     problem = case.problem(2, 1, case.parameters({}))
     t = problem.constraint_terms[0]
@@ -168,7 +168,8 @@ def test_per_element_data_are_held_once():
     assert t.W.shape == (t.nel, t.nq) and t.x.shape == (t.nel, t.nq, 2) and t.h.shape == t.alpha0.shape == (t.nel,)
     if jax.devices()[0].platform != "cpu":
         return
-    for name, view in (("W", t.W), ("x", t.x), ("h", t.h)):  # the device buffers themselves
+    held = t.data["W"].host  # (on affine cells d = |det A_e|, W[e, q] = d[e] w_q formed where read)
+    for name, view in (("W", held), ("x", t.x), ("h", t.h)):  # the device buffers themselves
         assert view.ctypes.data == t.data[name].parts[0].unsafe_buffer_pointer() and not view.flags.writeable
     for p in t.data["W"].parts + t._alpha0.parts:
         assert p.unsafe_buffer_pointer() % 64 == 0

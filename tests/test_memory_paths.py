@@ -518,3 +518,28 @@ def test_a_released_problem_drops_its_newton_structures_and_builds_them_again_eq
     problem.release()
     again = problem.minimize(result.x)
     assert again.converged and again.energy == problem.energy(result.x)
+
+
+@pytest.mark.parametrize("name, level, degree", [("obstacle", 2, 1), ("obstacle", 1, 2), ("two-membrane", 1, 1)])
+def test_a_term_on_affine_cells_holds_one_weight_per_element(name, level, degree, monkeypatch):
+    """On affine cells W[e, q] = |det A_e| w_q: a term holds |det A_e| (e,) and its kernels
+    form the product (47 MB less for the two membranes' contact at 1M unknowns); W read
+    from it is the measure's, and J_h, its gradient and Hessian are bitwise those of terms
+    that hold W (e, q)."""
+    from nitsche import measures
+    problem = problem_of(name, level, degree)
+    x = problem.initial(None) + 1e-2 * np.random.default_rng(7).standard_normal(problem.ndofs)
+    for t in problem.energy_terms + problem.constraint_terms:
+        assert t.weight_rule is not None and np.asarray(t.data["W"]).shape[1:] == ()
+        np.testing.assert_array_equal(t.W[:t.nel], t.measure.weights)
+    E, g, data = problem.assembler.evaluate(x)
+    monkeypatch.setattr(measures.Cells, "separable_weights", property(lambda self: None))
+    plain = problem_of(name, level, degree)
+    assert all(t.weight_rule is None for t in plain.energy_terms + plain.constraint_terms)
+    E0, g0, data0 = plain.assembler.evaluate(x)
+    assert E == E0
+    np.testing.assert_array_equal(g, g0)
+    np.testing.assert_array_equal(data, data0)
+    report, report0 = problem.constraint_report(x), plain.constraint_report(x)
+    for name_ in report:
+        assert report[name_]["contact_measure"] == report0[name_]["contact_measure"]

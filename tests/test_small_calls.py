@@ -53,7 +53,7 @@ def test_a_small_term_is_called_with_its_rung_and_gives_the_padded_call_outputs(
         assert called == [rung]
         small = t.chunks[0]
         rows = np.r_[np.arange(t.nel), np.full(small - t.nel, t.nel - 1)]
-        per_element = [x[d[rows]] for d in t.field_dofs] + [a[rows] for a in (t.W, t.x, t.n, t.h, t.alpha0)]
+        per_element = [x[d[rows]] for d in t.field_dofs] + [a[rows] for a in (t.weights, t.x, t.n, t.h, t.alpha0)]
         tables = [np.asarray(a) if a.shape[0] == 1 else np.asarray(a)[rows] for a in t.tables]
         theta = np.broadcast_to(t.parameters.values[t.parameter_index], (small, t.parameter_index.size))
         padded = t.kernel("full", small)(*tables, *per_element, theta)
