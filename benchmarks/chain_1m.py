@@ -7,8 +7,9 @@ checkout, and prints one JSON line per run: the chain's wall time (`total`, set-
 included: peers.run_ours), the set-up not beside a Newton solve (`setup`), the process's
 wall and CPU time (imports included), its peak resident memory (ru_maxrss: with the
 benchmark's lists of the fields and their energy, `referee`, after the chain) and the
-chain's own (`solve_peak_mb`: VmHWM as the chain ends), the Newton iterations per level, J_h and the load
-average.  Warm the kernel store of each checkout first (a run with --top 4).
+chain's own (`solve_peak_mb`: VmHWM as the chain ends), the kernels' compilation or
+loading within it (`compile`), the Newton iterations per level, J_h and the load average.
+Warm the kernel store of each checkout first (a run with --top 4).
 
 --linear adds to each repetition one linear solve of the same size (peers.py's linear
 code on the finest n x n tensor mesh: a Laplace assembly per field and one CHOLMOD
@@ -50,7 +51,8 @@ def run(problem, root, ns, code="ours"):
         out = json.load(fh)
     os.unlink(path)
     row = dict(root=root, wall=wall, cpu=ru.ru_utime + ru.ru_stime, peak_mb=ru.ru_maxrss / 1024,
-               solve_peak_mb=out.get("solve_peak_mb"), total=out["times"]["total"], setup=out["times"]["setup"])
+               solve_peak_mb=out.get("solve_peak_mb"), total=out["times"]["total"], setup=out["times"]["setup"],
+               compile=out["times"]["compile"])
     if code == "linear":
         return dict(row, root="linear", unknowns=out["unknowns"], load=os.getloadavg()[0])
     return dict(row, its=out["iterations_per_level"], energy=out["own_energy"], unknowns=out["unknowns"],
