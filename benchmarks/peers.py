@@ -63,6 +63,8 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
+from memory_phases import status  # noqa: E402  (/proc/self/status in MB)
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 PROBLEMS = ("obstacle", "two-membrane", "obstacle-3d")
@@ -265,7 +267,7 @@ def run_ours(problem, level, alpha0, mesh_spec=None):
         problem_k = result_k = None  # not held through the next level (nested holds its own)
     t["setup"] = time.perf_counter() - t_all - newton_seconds  # (wall: set-up beside the solves is not in it)
     t["total"] = time.perf_counter() - t_all
-    solve_peak_mb = vmhwm_mb()  # (before the fields' lists below)
+    solve_peak_mb = status("VmHWM")  # (before the fields' lists below)
     parts = prob.split(res.x)
     names = [f.name for f in prob.fields] if problem in PROBLEMS else []  # (not membrane-solid)
     return dict(unknowns=int(prob.free.size), iterations=sum(its), iterations_per_level=its, converged=True,
@@ -497,13 +499,6 @@ def run_linear(problem, level, alpha0, mesh_spec=None):
     return dict(unknowns=int(A.shape[0]), iterations=1, times=t, mesh=None, solver=lin.name)
 
 
-def vmhwm_mb():
-    """The peak resident memory of this process so far, MB (VmHWM: this exec'd image only;
-    ru_maxrss of a child on Linux also counts the parent's memory at fork time)."""
-    with open("/proc/self/status") as fh:
-        return next(int(l.split()[1]) for l in fh if l.startswith("VmHWM")) / 1024.0
-
-
 def worker(args):
     code, problem, level, alpha0 = args.worker[0], args.worker[1], int(args.worker[2]), float(args.worker[3])
     spec = [int(n) for n in args.worker[4].split(",")] if len(args.worker) > 4 else None
@@ -513,13 +508,16 @@ def worker(args):
         pass
     fn = dict(ours=run_ours, skfem=run_skfem, ngsolve=run_ngsolve, linear=run_linear)[code]
     out = fn(problem, level, alpha0, spec) if code in ("ours", "linear") else fn(problem, level, alpha0)
-    out.setdefault("solve_peak_mb", vmhwm_mb())  # the solve's own peak: before the referee's energy below
+    # peak resident memory of this process (VmHWM: this exec'd image only; ru_maxrss of a
+    # child on Linux also counts the parent's memory at fork time): the solve's own, before
+    # the referee's energy below, and the whole run's
+    out.setdefault("solve_peak_mb", status("VmHWM"))
     mesh = out.pop("mesh")
     if out.get("fields"):
         fields = [np.asarray(u) for u in out.pop("fields")]
         out["energy"], out["active"] = referee(problem, mesh, alpha0, fields)
     out["code"] = code
-    out["peak_mb"] = vmhwm_mb()
+    out["peak_mb"] = status("VmHWM")
     with open(args.out, "w") as fh:
         json.dump(out, fh)
 

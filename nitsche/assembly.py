@@ -373,15 +373,18 @@ class Term:
         self.layout = self._record(fs)
         if not self.layout:
             raise ConstantDensity(f"{label} does not depend on any field")
-        # W[e, q] = d[e] w_q on affine cells: d held per element, w_q in the kernels (weight_rule)
-        factors = getattr(measure, "separable_weights", None) if like is None else None
-        W = (factors[0] if factors is not None else measure.weights) if like is None else None
-        self.weight_rule = (tuple(factors[1].tolist()) if factors is not None else None) if like is None \
-            else like.weight_rule
-        self.nel, self.nq = ((W.shape[0], len(self.weight_rule)) if factors is not None else W.shape) \
-            if like is None else (like.nel, like.nq)
-        self.nonnegative_weights = bool(np.all(W >= 0) and (factors is None or np.all(factors[1] >= 0))) \
-            if like is None else like.nonnegative_weights
+        W = None  # the weights held: W[e, q], or on affine cells d[e], W = d w_q (weight_rule)
+        if like is not None:
+            self.weight_rule, self.nel, self.nq = like.weight_rule, like.nel, like.nq
+            self.nonnegative_weights = like.nonnegative_weights
+        elif getattr(measure, "separable_weights", None) is not None:
+            W, w = measure.separable_weights
+            self.weight_rule, self.nel, self.nq = tuple(w.tolist()), W.shape[0], w.size
+            self.nonnegative_weights = bool(np.all(W >= 0) and np.all(w >= 0))
+        else:
+            W = measure.weights
+            self.weight_rule, (self.nel, self.nq) = None, W.shape
+            self.nonnegative_weights = bool(np.all(W >= 0))
         self.has_normal = measure.normals is not None if like is None else like.has_normal
         self.fields = [by_name[name] for name, _, _ in self.layout]
         # per field: T (the tabulation's kept rows) or, for a Mapped one, the reference
