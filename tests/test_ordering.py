@@ -154,3 +154,41 @@ def test_make_solver_orders_large_2d_problems_geometrically():
     assert make_solver("auto", METIS_THRESHOLD_2D, dim=2).geometric
     lin = make_solver("auto", METIS_KEPT_2D + 1, dim=2)  # without prepare: METIS, as before
     assert lin.geometric and lin.ordering == "metis" and lin.coordinates is None
+
+
+@needs_cholmod
+def test_the_first_order_is_dissected_from_the_whole_pattern_in_the_background(monkeypatch):
+    """Where a core is idle, Cholmod.prepare dissects the problem's whole pattern in the
+    background (free_dof_order: a permutation of the free dofs) and the first analysis takes
+    that order, with the fill of the dissection of the analyzed entries to a few percent;
+    on one core the analysis dissects its entries itself: the same minimum."""
+    from sksparse.cholmod import cholesky
+    from nitsche import threads
+    from nitsche.cases import get
+    from nitsche.linalg import dof_locations, free_dof_order
+    c = get("two-membrane")
+    problem = c.problem(3, 1, c.parameters())
+    a = problem.assembler
+    order = free_dof_order(a.indptr, a.indices, dof_locations(problem), problem.free)
+    assert is_permutation(order, problem.free.size)
+    first = {}
+    analyze = Cholmod._analyze
+
+    def recorded(self, A):
+        analyze(self, A)
+        first.setdefault(id(self), (self.perm.copy(), self.analyzed.part(A).copy(), self.coordinates()))
+    monkeypatch.setattr(Cholmod, "_analyze", recorded)
+    results = {}
+    for cores in (2, 1):
+        monkeypatch.setattr(threads, "cores", lambda: cores)
+        lin = Cholmod(ordering="amd", geometric=True)
+        results[cores] = problem.minimize(solver=lin).check()
+        assert lin.first_order is None  # (taken by the first analysis, or never started)
+        perm, given, points = first[id(lin)]
+        own = nested_dissection(given, points)
+        assert np.array_equal(perm, order if cores == 2 else own)
+        if cores == 2:  # the fill of the two orders
+            fill = [cholesky(given[p][:, p].tocsc(), ordering_method="natural").L().nnz for p in (perm, own)]
+            assert fill[0] <= 1.05 * fill[1], fill
+    assert abs(results[2].energy - results[1].energy) <= 1e-12 * abs(results[1].energy)
+    assert results[2].iterations == results[1].iterations
