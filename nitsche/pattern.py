@@ -29,7 +29,7 @@ import scipy.sparse as sp
 from . import threads
 
 CHUNK = 2 ** 20  # element-matrix entries scattered per call
-KEYS_PER_BLOCK = 2 ** 20  # group pairs located at once (pair_positions, over all its threads; 2^22: twice the peak, no faster)
+KEYS_PER_BLOCK = 2 ** 20  # group pairs located per search (pair_positions; 2^22: twice the peak, no faster)
 
 
 def index_type(*sizes):
@@ -109,7 +109,7 @@ def pair_positions(g, search, G, index):
     E, r = g.shape
     position = np.empty((E, r, r), index)
     a, c = np.triu_indices(r, 1)
-    step = max(1, KEYS_PER_BLOCK // (max(a.size, 1) * threads.cores()))  # (the keys at once: as on one thread)
+    step = max(1, KEYS_PER_BLOCK // max(a.size, 1))
 
     def locate(s):
         """The block of elements from s; False if the pattern lacks one of its pairs."""
