@@ -13,7 +13,6 @@ preconditioned by an incomplete LU, for large 3D problems).
 import functools
 import hashlib
 import os
-import threading
 import warnings
 import weakref
 
@@ -91,37 +90,26 @@ class Cholmod:
         self.keep_factored, self.prune = True, True
         self.ordering, self.geometric = ordering, geometric
         self.coordinates = self.perm = None  # () -> the free dofs' points; the nested dissection's order
-        self.first_order = None  # the first analysis's order, dissected in the background (prepare)
         self.reordered = None  # with perm: P A P^T's lower triangle, its values positions in A.data
         self.reuse_iterations, self.stale = reuse_iterations, False
         self.factorizations, self.iterations, self.analyses = 0, [], 0
         self.analyzed = None  # the NonzeroPattern of the symbolic analysis
 
     def prepare(self, problem):
-        """The free dofs' points for the nested dissection; where a core is idle (no other
-        Python thread at work, more than one core), the first analysis's order dissected from
-        the problem's whole pattern in the background meanwhile (free_dof_order: beside the
-        first Newton system's assembly; 1.0-1.1 s at 1M 2D unknowns)."""
         if self.geometric:
             self.coordinates = functools.partial(dof_coordinates, problem)
-            a = getattr(problem, "assembler", None)
-            if a is not None and threads.cores() > 1 and threading.active_count() == 1:
-                self.first_order = threads.Background(functools.partial(
-                    free_dof_order, a.indptr, a.indices, dof_locations(problem), problem.free))
 
     def _analyze(self, A):
         """The symbolic analysis of A on the analyzed entries: ordered by CHOLMOD, or by
         nested dissection of the dofs' points (`reordered`: the permuted lower triangle's
         pattern, its entries' positions in A.data)."""
         given = self.analyzed.part(A)
-        ahead, self.first_order = self.first_order, None
-        self.perm = ahead.value() if ahead is not None else None
-        if self.perm is None or self.perm.size != A.shape[0]:  # (none ahead, or of other dofs)
-            points = self.coordinates() if self.coordinates else None
-            self.perm = None if points is None or len(points) != A.shape[0] else nested_dissection(given, points)
-        if self.perm is None:  # (no points, or those of another problem)
+        points = self.coordinates() if self.coordinates else None
+        if points is None or len(points) != A.shape[0]:  # (points of another problem)
+            self.perm = None
             self.factor = analyze(given, ordering_method=self.ordering)
         else:
+            self.perm = nested_dissection(given, points)
             self.reordered = permuted_lower(given, self.perm)
             if not self.analyzed.all:
                 kept = np.flatnonzero(self.analyzed.kept).astype(index_type(A.data.size))
@@ -629,9 +617,9 @@ def lowest_eigenvalue(A, M, iterations=40):
         return float(spla.lobpcg(A, X, M=M, largest=False, tol=1e-3, maxiter=iterations)[0][0])
 
 
-def dof_locations(problem):
-    """All dofs' locations (ndofs, dim) from the fields' dof bases (a field of a lower
-    dimension padded with zeros), None if a field's element has none."""
+def dof_coordinates(problem):
+    """The free dofs' locations (free dofs, dim) from the fields' dof bases (a field of a
+    lower dimension padded with zeros), None if a field's element has none."""
     fields = problem.fields
     if not all(hasattr(f.dof_basis, "doflocs") for f in fields):
         return None
@@ -640,31 +628,7 @@ def dof_locations(problem):
     for f in fields:
         x = f.dof_basis.doflocs
         X[problem.offsets[f.name]:problem.offsets[f.name] + f.ndofs, :x.shape[0]] = x.T
-    return X
-
-
-def dof_coordinates(problem):
-    """The free dofs' locations (free dofs, dim), None if a field's element has none."""
-    X = dof_locations(problem)
-    return None if X is None else X[problem.free]
-
-
-def free_dof_order(indptr, indices, points, free):
-    """A fill-reducing order of the free dofs (numbered 0 .. free.size - 1) from the pattern
-    of all dofs (CSR indptr, indices) and their points: the free dofs in the order of the
-    nested dissection of all of them (a separator less its fixed dofs is one of the free
-    dofs' graph); None without points.  The pattern holds every entry a Newton matrix may
-    have; an ordering of the entries of one matrix that are significant (the analysis's)
-    cuts along the same planes (the obstacle's and two membranes' factors at 261k and 293k
-    unknowns: nnz(L) -0.1 % and +0.2 %)."""
-    if points is None:
-        return None
-    n = indptr.size - 1
-    order = nested_dissection(sp.csr_matrix((np.ones(indices.size, np.int8), indices, indptr), shape=(n, n)), points)
-    number = np.full(n, -1, np.int64)
-    number[free] = np.arange(free.size)
-    number = number[order]
-    return number[number >= 0]
+    return X[problem.free]
 
 
 def near_nullspace(problem):

@@ -26,7 +26,10 @@ def nested_dissection(A, points, leaf=LEAF):
     bucket count per subdomain and one pass over A's edges, no sort): O(nnz log n)."""
     n = A.shape[0]
     x = np.ascontiguousarray(np.asarray(points, dtype=float).reshape(n, -1 if n else 1).T)  # (dim, n)
-    I, J = upper_edges(A)
+    C = sp.coo_matrix(A)
+    upper = C.row < C.col
+    I, J = C.row[upper].astype(np.int32), C.col[upper].astype(np.int32)
+    del C, upper
     perm = np.empty(n, dtype=np.int64)
     items = np.arange(n, dtype=np.int32)          # the undecided rows, grouped by subdomain
     sizes, starts = np.array([n]), np.array([0])  # per subdomain: rows, first position in perm
@@ -82,16 +85,6 @@ def nested_dissection(A, points, leaf=LEAF):
         starts = np.stack([starts, starts + n_left], axis=1).ravel()
         sizes, starts = sizes[sizes > 0], starts[sizes > 0]
     return perm
-
-
-def upper_edges(A):
-    """The edges (i, j), i < j, of a sparse matrix's symmetric pattern as two int32 arrays, read
-    from its compressed index arrays (CSR or CSC alike)."""
-    if not (sp.issparse(A) and A.format in ("csr", "csc")):
-        A = sp.csr_matrix(A)
-    major = np.repeat(np.arange(A.shape[0], dtype=np.int32), np.diff(A.indptr))
-    upper = major < A.indices
-    return major[upper], A.indices[upper].astype(np.int32)
 
 
 def counts(mask, first):

@@ -26,8 +26,6 @@ a group have one length (its stride), so the entry (j, l) is at
 import numpy as np
 import scipy.sparse as sp
 
-from . import threads
-
 CHUNK = 2 ** 20  # element-matrix entries scattered per call
 KEYS_PER_BLOCK = 2 ** 20  # group pairs located per search (pair_positions; 2^22: twice the peak, no faster)
 
@@ -102,34 +100,30 @@ def pair_positions(g, search, G, index):
     (E, r, r) in `index`, or None when the pattern lacks one; search = (held, diagonal,
     transposed): the sorted keys g * G + h of the pattern's entries and its symmetric_maps.
     Only the pairs of local groups a < c are searched, by blocks of elements (each block's
-    distinct pairs located by one search; its pairs are not all held at once; the blocks on
-    the cores, threads.blocks): the pattern is symmetric, so (c, a) is at
-    transposed[position of (a, c)] and (a, a) at diagonal[g_a]."""
+    distinct pairs located by one search; its pairs are not all held at once): the pattern is
+    symmetric, so (c, a) is at transposed[position of (a, c)] and (a, a) at diagonal[g_a]."""
     held, diagonal, transposed = search
     E, r = g.shape
     position = np.empty((E, r, r), index)
     a, c = np.triu_indices(r, 1)
     step = max(1, KEYS_PER_BLOCK // max(a.size, 1))
-
-    def locate(s):
-        """The block of elements from s; False if the pattern lacks one of its pairs."""
+    for s in range(0, E, step):
         b = g[s:s + step].astype(np.int64)
         block = position[s:s + step]
         own = diagonal[b]
         if np.any(own < 0):
-            return False
+            return None
         block[:, np.arange(r), np.arange(r)] = own
         if not a.size:
-            return True
+            continue
         keys, rank = distinct((b[:, a] * G + b[:, c]).ravel(), index_type(b.shape[0] * a.size))
         where = np.minimum(np.searchsorted(held, keys), max(held.size - 1, 0))
         if held.size == 0 or not np.array_equal(held[where], keys):
-            return False
+            return None
         upper = where.astype(index)[rank].reshape(b.shape[0], a.size)
         block[:, a, c] = upper
         block[:, c, a] = transposed[upper]
-        return True
-    return position if threads.blocks(locate, range(0, E, step)) else None
+    return position
 
 
 def symmetric_maps(indptr, indices, held):

@@ -8,6 +8,7 @@ has one.
 """
 import dataclasses
 import sys
+import threading
 import time
 
 import numpy as np
@@ -15,7 +16,6 @@ import numpy as np
 from .allocator import release_freed_memory
 from .norms import energy_norm, rates
 from .newton import RTOL, NotConverged
-from . import threads
 
 
 def prolongate(coarse, x, fine):
@@ -57,11 +57,37 @@ AHEAD_MEMORY = 0.5  # the finest level built ahead (solve_nested) while its esti
 FAILURES = (MemoryError, ValueError, ArithmeticError, np.linalg.LinAlgError)  # of a finer level
 
 
-class Ahead(threads.Background):
-    """The finest level of a nested chain built in a background thread, beside the coarser
-    levels (nested's ahead)."""
+class Ahead:
+    """make() run in a background thread from now on; value() waits for it and returns what
+    it returned or raises what it raised.  Not a daemon thread: the interpreter's exit waits
+    for it (a daemon thread still inside JAX's or NumPy's native code when the interpreter
+    finalizes is unwound there and aborts the process, SIGABRT instead of the exit status)."""
 
-    NAME = "nitsche-ahead"
+    NAME = "nitsche-ahead"  # its threads' name
+
+    def __init__(self, make):
+        self._outcome = None
+        self._thread = threading.Thread(target=self._run, args=(make,), name=self.NAME)
+        self._thread.start()
+
+    @staticmethod
+    def running():
+        """Whether an Ahead's thread is still at work (e.g. a chain stopped on a coarser level)."""
+        return any(t.name == Ahead.NAME and t.is_alive() for t in threading.enumerate())
+
+    def _run(self, make):
+        try:
+            self._outcome = (True, make())
+        except BaseException as e:  # noqa: BLE001 -- handed to value()'s caller
+            self._outcome = (False, e)
+
+    def value(self):
+        self._thread.join()
+        done, value = self._outcome
+        self._outcome = None  # (not held here once handed over)
+        if not done:
+            raise value
+        return value
 
 
 def nested(make_problem, levels, solve=None, coarse_rtol=None, coarse_reduction=None, ahead=False,

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from nitsche import threads
 from nitsche.cases import get
 from nitsche.pattern import Pattern, dof_groups, runs, sort_with_order
 
@@ -193,9 +192,8 @@ def test_quadratic_terms_on_their_own_entries_add_as_full_length_arrays(name, se
 @pytest.mark.parametrize("name, sets", [("two-membrane", {}), ("membrane-solid", {"cells": "tet"})])
 def test_pair_positions_by_small_blocks_of_elements_equal_those_of_one_block(name, sets, monkeypatch):
     """pair_positions locates the group pairs block by block of elements: blocks of one
-    element (7 // 36 pairs, an earlier pattern kept; on the cores, threads.blocks, and on
-    one thread) give the pattern and every scatter's positions of blocks larger than all the
-    pairs."""
+    element (7 // 36 pairs, an earlier pattern kept) give the pattern and every scatter's
+    positions of blocks larger than all the pairs."""
     import nitsche.pattern as pattern
     case = get(name)
     problem = case.problem(1, 1, case.parameters(sets))
@@ -209,10 +207,6 @@ def test_pair_positions_by_small_blocks_of_elements_equal_those_of_one_block(nam
     assert blocks.indices.tolist() == whole.indices.tolist()
     assert whole.indices[whole.indptr[0]:whole.indptr[1]][-1] == n - 1  # the kept entry
     for a, b in zip(blocks.scatters, whole.scatters):
-        assert np.array_equal(a.positions(), b.positions())
-    monkeypatch.setattr(threads, "cores", lambda: 1)  # the blocks on one thread: the same
-    alone = Pattern(maps, n, keep=(keep.indptr, keep.indices))
-    for a, b in zip(alone.scatters, blocks.scatters):
         assert np.array_equal(a.positions(), b.positions())
 
 

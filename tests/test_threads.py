@@ -75,35 +75,3 @@ def test_a_factorization_on_two_threads_solves_to_round_off(monkeypatch):
         assert lin.factorizations == 1
     assert np.linalg.norm(A @ x["2"] - b) <= 1e-12 * np.linalg.norm(b)
     assert np.allclose(x["1"], x["2"], rtol=1e-12, atol=0)
-
-
-@pytest.mark.parametrize("cores", [1, 2, 3])
-def test_blocks_run_every_block_once_and_stop_at_the_first_failure(monkeypatch, cores):
-    monkeypatch.setattr(threads, "cores", lambda: cores)
-    out, names = np.zeros(10), set()
-
-    def work(s):
-        names.add(threading.current_thread().name)
-        out[s:s + 2] += s + 1
-        return True
-    assert threads.blocks(work, range(0, 10, 2))
-    assert out.tolist() == [1, 1, 3, 3, 5, 5, 7, 7, 9, 9]
-    assert len(names) <= cores and (cores > 1) == all(n.startswith("nitsche-block") for n in names)
-    started = []
-
-    def failing(s):
-        started.append(s)
-        return s != 0
-    assert not threads.blocks(failing, range(0, 1000, 2))
-    assert len(started) < 500  # (the blocks after the failure were not all run)
-    assert threads.blocks(work, [])
-    assert not any(t.name.startswith("nitsche-block") for t in threading.enumerate())  # (all joined)
-
-
-def test_a_background_value_is_what_make_returned_or_raised():
-    done = threads.Background(lambda: 42)
-    assert done.value() == 42
-    failed = threads.Background(lambda: 1 / 0)
-    with pytest.raises(ZeroDivisionError):
-        failed.value()
-    assert not threads.Background.running()
