@@ -5,30 +5,66 @@ PY      = $(VENV)/bin/python
 PIP     = $(VENV)/bin/pip
 OUT    ?= out
 
-.PHONY: install demo paper test test-full bench docs clean system-deps petsc
+.PHONY: install demo paper test test-full bench docs clean system-deps petsc cholmod
 
 $(VENV)/.installed: pyproject.toml
 	$(MAKE) system-deps
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
 	$(PIP) install -q -e ".[test]"
-	@# CHOLMOD (scikit-sparse < 0.5 builds against Debian's SuiteSparse 5); SciPy's SuperLU otherwise
-	-$(PIP) install -q "scikit-sparse<0.5" || echo "scikit-sparse not installed: using SciPy's SuperLU"
+	@# CHOLMOD (SuiteSparse 7 built below, scikit-sparse 0.5 against it); SciPy's SuperLU otherwise
+	$(MAKE) cholmod || echo "CHOLMOD not built: using SciPy's SuperLU"
 	$(PY) -c "import nitsche.linalg as l; print('linear solver:', l.describe())"
 	touch $@
 
 install: $(VENV)/.installed
 
-# Debian's SuiteSparse headers for CHOLMOD and OpenBLAS (CHOLMOD's factorizations about
-# 2x faster than with the reference BLAS), where the machine allows (root or sudo)
+# What SuiteSparse's build needs: CMake, C and C++ compilers, OpenBLAS (CHOLMOD's factorizations
+# about 2x faster than with the reference BLAS; its LAPACK for SPQR), where the machine allows
+# (root or sudo)
 system-deps:
-	@if [ -f /usr/include/suitesparse/cholmod.h ] && \
-	   ls /usr/lib/*/openblas*/libblas.so.3 >/dev/null 2>&1; then exit 0; fi; \
+	@if command -v cmake >/dev/null 2>&1 && command -v g++ >/dev/null 2>&1 && \
+	   ls /usr/lib/*/libopenblas.so >/dev/null 2>&1; then exit 0; fi; \
 	if command -v apt-get >/dev/null 2>&1; then \
 	  SUDO=""; [ "$$(id -u)" = 0 ] || SUDO="sudo -n"; \
-	  ($$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libsuitesparse-dev libopenblas0-pthread >/dev/null) \
-	  || echo "could not install libsuitesparse-dev / OpenBLAS: SciPy's solver or the reference BLAS"; \
+	  ($$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq cmake g++ libopenblas-dev >/dev/null) \
+	  || echo "could not install CMake / g++ / OpenBLAS: SciPy's solver or the reference BLAS"; \
 	fi
+
+# CHOLMOD with single-precision factors (nitsche.linalg: the preconditioner of the large
+# levels' CG) needs SuiteSparse 7.4 or later; Debian bookworm has 5.12.  SuiteSparse's source
+# as Debian trixie ships it (its checksum checked), built with CMake into $(VENV)/suitesparse
+# (the libraries scikit-sparse links: CHOLMOD and AMD, CAMD, COLAMD, CCOLAMD, BTF, KLU, UMFPACK,
+# SPQR; a few minutes on 2 cores), then scikit-sparse 0.5 from its source against it (rpath
+# to that prefix).  The build tree is removed afterwards.
+SUITESPARSE_VERSION ?= 7.10.1
+SUITESPARSE_SHA256 ?= f33dc4dbbaa16711861bb986604ac7ea15d949276951c706c6997d5567cebfcc
+SUITESPARSE_URL ?= http://deb.debian.org/debian/pool/main/s/suitesparse/suitesparse_$(SUITESPARSE_VERSION)+dfsg.orig.tar.xz
+SUITESPARSE_PROJECTS = suitesparse_config;amd;camd;colamd;ccolamd;btf;klu;cholmod;umfpack;spqr
+SUITESPARSE_PREFIX = $(abspath $(VENV))/suitesparse
+SUITESPARSE_BUILD = $(abspath $(VENV))/build-suitesparse
+SCIKIT_SPARSE_VERSION ?= 0.5.0
+$(VENV)/.cholmod-installed:
+	rm -rf $(SUITESPARSE_BUILD) && mkdir -p $(SUITESPARSE_BUILD)/src
+	$(PY) -c "import hashlib, sys, urllib.request; data = urllib.request.urlopen(sys.argv[1]).read(); \
+	  digest = hashlib.sha256(data).hexdigest(); \
+	  sys.exit(f'{sys.argv[1]}: sha256 {digest}, expected {sys.argv[2]}') if digest != sys.argv[2] else None; \
+	  open(sys.argv[3], 'wb').write(data)" $(SUITESPARSE_URL) $(SUITESPARSE_SHA256) $(SUITESPARSE_BUILD)/src.tar.xz
+	tar xJf $(SUITESPARSE_BUILD)/src.tar.xz -C $(SUITESPARSE_BUILD)/src --strip-components=1
+	cmake -S $(SUITESPARSE_BUILD)/src -B $(SUITESPARSE_BUILD)/build -DCMAKE_BUILD_TYPE=Release \
+	  -DCMAKE_INSTALL_PREFIX=$(SUITESPARSE_PREFIX) -DSUITESPARSE_ENABLE_PROJECTS="$(SUITESPARSE_PROJECTS)" \
+	  -DSUITESPARSE_USE_CUDA=OFF -DSUITESPARSE_USE_FORTRAN=OFF -DSUITESPARSE_USE_64BIT_BLAS=OFF \
+	  -DBLA_VENDOR=OpenBLAS -DBUILD_STATIC_LIBS=OFF -DSUITESPARSE_DEMOS=OFF -DBUILD_TESTING=OFF > $(SUITESPARSE_BUILD)/cmake.log
+	cmake --build $(SUITESPARSE_BUILD)/build -j $$(nproc) > $(SUITESPARSE_BUILD)/build.log
+	cmake --install $(SUITESPARSE_BUILD)/build > $(SUITESPARSE_BUILD)/install.log
+	SUITESPARSE_INCLUDE_DIR=$(SUITESPARSE_PREFIX)/include/suitesparse SUITESPARSE_LIBRARY_DIR=$(SUITESPARSE_PREFIX)/lib \
+	  LDFLAGS="-Wl,-rpath,$(SUITESPARSE_PREFIX)/lib" \
+	  $(PIP) install -q --no-cache-dir --no-binary scikit-sparse --force-reinstall --no-deps "scikit-sparse==$(SCIKIT_SPARSE_VERSION)"
+	$(PY) -c "import sksparse.cholmod, nitsche.linalg as l; assert l.HAVE_CHOLMOD, 'scikit-sparse >= 0.5 not importable'"
+	rm -rf $(SUITESPARSE_BUILD)
+	touch $@
+
+cholmod: $(VENV)/.cholmod-installed
 
 # The distributed engine (mpirun -n N nitsche run CASE; nitsche.distributed): Debian's Open MPI,
 # MUMPS 5.5 built with Scotch and PT-Scotch (libmumps-ptscotch-dev: libdmumps_ptscotch, next to

@@ -29,6 +29,8 @@ import sys
 import tempfile
 import time
 
+from peers import interpreter
+
 CHAINS = {"obstacle": [8 * 2 ** k for k in range(8)], "two-membrane": [6 * 2 ** k for k in range(8)]}
 
 
@@ -37,7 +39,7 @@ def run(problem, root, ns, code="ours"):
     nitsche from the checkout root: its row."""
     fd, path = tempfile.mkstemp(suffix=".json")
     os.close(fd)
-    cmd = [sys.executable, os.path.join(root, "benchmarks", "peers.py"), "--out", path, "--worker", code,
+    cmd = [interpreter(root), os.path.join(root, "benchmarks", "peers.py"), "--out", path, "--worker", code,
            problem, "0", "0.1", ",".join(map(str, ns))]
     t = time.perf_counter()
     child = subprocess.Popen(cmd, env=dict(os.environ, PYTHONPATH=os.path.abspath(root)),

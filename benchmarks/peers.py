@@ -191,22 +191,31 @@ class Cholesky:
 
     def __init__(self):
         try:
-            from sksparse.cholmod import analyze
-            self.analyze, self.name = analyze, "cholmod"
+            from sksparse.cholmod import CholeskyFactor
+            self.analyze, self.name = CholeskyFactor, "cholmod"
         except ImportError:
             self.analyze, self.name = None, "superlu"
         self.symbolic = None
 
     def solve(self, A, b):
+        """A double-precision factorization of A (a copy of the kept analysis) and its solve."""
         if self.analyze is None:
             from scipy.sparse.linalg import spsolve
             return spsolve(A.tocsc(), b)
         A = A.tocsc()
         if self.symbolic is None:
-            self.symbolic = self.analyze(A)
+            self.symbolic = self.analyze(A, lower=True)
+        factor = self.symbolic.copy()
         with factorization_threads():
-            self.symbolic.cholesky_inplace(A)
-        return self.symbolic(b)
+            factor.factorize(A)
+        return factor.solve(b)
+
+
+def interpreter(root):
+    """The Python that runs a checkout: its own environment's (ROOT/.venv, e.g. a link to the
+    environment an earlier version was installed in) where it has one, else this one."""
+    own = os.path.join(root, ".venv", "bin", "python")
+    return own if os.path.exists(own) else sys.executable
 
 
 def factorization_threads():

@@ -31,6 +31,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 RESULTS = os.path.join(HERE, "results")
 sys.path.insert(0, HERE)
+import peers  # noqa: E402
 
 
 def run_ours(case, level, source=None):
@@ -38,7 +39,8 @@ def run_ours(case, level, source=None):
     nitsche from): (result.json, peak MB: the child's ru_maxrss, which on Linux also counts
     this small parent's memory at fork time, CPU s: the child's user + system time)."""
     out = tempfile.mkdtemp(prefix="run_ratio_")
-    command = [sys.executable, "-c", "import sys; from nitsche.cli import main; sys.exit(main())"]
+    command = [peers.interpreter(source) if source else sys.executable, "-c",
+               "import sys; from nitsche.cli import main; sys.exit(main())"]
     env = dict(os.environ, PYTHONPATH=source) if source else None
     proc = subprocess.Popen(command + ["run", case, "--level", str(level), "--out", out], cwd=out,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
@@ -53,7 +55,6 @@ def run_ours(case, level, source=None):
 
 
 def main():
-    import peers
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="+", default=["obstacle", "two-membrane"])
     ap.add_argument("--level", type=int, default=6)

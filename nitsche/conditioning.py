@@ -7,12 +7,15 @@ estimated with ARPACK: the largest in magnitude directly, the smallest by
 shift-invert about 0 (one sparse LU factorization), from a seeded start vector: the
 estimates are the same run to run.
 """
+import functools
+
 import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .linalg import METIS_THRESHOLD_2D, symmetric_csc
+from .linalg import (HAVE_CHOLMOD, METIS_THRESHOLD_2D, IndefiniteHessian, cholmod_factor, factor_solve,
+                     symmetric_csc)
 
 DENSE_LIMIT = 500
 SEED = 0
@@ -99,17 +102,13 @@ def cholesky_inverse(A):
     METIS_THRESHOLD_2D unknowns (the two membranes' Jacobian at 522k: nnz(L) 29.2M against
     AMD's 39.0M, 1 s more); None when A is not positive definite or scikit-sparse is
     missing.  A CSR matrix is factored as its transpose (CSC, no copy: A is symmetric)."""
-    try:
-        from sksparse.cholmod import cholesky, CholmodNotPositiveDefiniteError
-    except ImportError:
+    if not HAVE_CHOLMOD:
         return None
     try:
-        factor = cholesky(symmetric_csc(A), ordering_method="metis" if A.shape[0] > METIS_THRESHOLD_2D else "amd")
-    except CholmodNotPositiveDefiniteError:
+        factor = cholmod_factor(symmetric_csc(A), "metis" if A.shape[0] > METIS_THRESHOLD_2D else "amd")
+    except IndefiniteHessian:
         return None
-    if not np.all(factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
-        return None
-    return spla.LinearOperator(A.shape, matvec=factor, dtype=float)
+    return spla.LinearOperator(A.shape, matvec=functools.partial(factor_solve, factor), dtype=float)
 
 
 def jacobian_condition(problem, x, **options):

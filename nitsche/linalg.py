@@ -1,15 +1,17 @@
 """Linear solvers for the Newton systems, behind one interface.
 
-`cholmod`: sparse Cholesky (CHOLMOD through scikit-sparse), symbolic analysis
-once per pattern; the numeric factor of one Newton matrix preconditions CG on the
-next ones (they differ only where the active set changed), and a new factorization
-is made only when CG needs too many iterations.  `superlu`: SciPy's
+`cholmod`: sparse Cholesky (CHOLMOD through scikit-sparse 0.5 or later), symbolic
+analysis once per pattern; the numeric factor of one Newton matrix preconditions CG on
+the next ones (they differ only where the active set changed), and a new factorization
+is made only when CG needs too many iterations; on large problems the factor is kept in
+single precision, as CG's preconditioner only.  `superlu`: SciPy's
 sparse LU, the fallback when scikit-sparse is not installed.  `amg`: conjugate
 gradients preconditioned by smoothed-aggregation algebraic multigrid (pyamg),
 for large and 3D problems.  Non-symmetric Newton matrices (residual terms: Coulomb
 friction, theta != 1) take `superlu` (LU with partial pivoting) or `gmres` (GMRES
 preconditioned by an incomplete LU, for large 3D problems).
 """
+import ctypes
 import functools
 import hashlib
 import os
@@ -25,9 +27,9 @@ from .ordering import nested_dissection
 from .pattern import index_type
 
 try:
-    from sksparse.cholmod import analyze, cholesky, CholmodNotPositiveDefiniteError
+    from sksparse.cholmod import CholeskyFactor, CholmodError, CholmodNotPositiveDefiniteError, CholmodWarning
     HAVE_CHOLMOD = True
-except ImportError:  # pragma: no cover - depends on the machine
+except ImportError:  # pragma: no cover - depends on the machine (or scikit-sparse < 0.5)
     HAVE_CHOLMOD = False
 
 AMG_THRESHOLD_3D = 50_000  # 'auto' switches to AMG-CG above this many unknowns in 3D (P1 tetrahedra,
@@ -39,6 +41,10 @@ GEOMETRIC_THRESHOLD_3D = 5_000   # of the dofs' points (nitsche.ordering) where 
 # (prepare), else the orderings above; but METIS up to METIS_KEPT_2D (its smaller factor keeps
 # the 523k obstacle's peak at 1.5x the linear solve's)
 METIS_KEPT_2D = 750_000
+SINGLE_THRESHOLD = 200_000  # above this many unknowns CHOLMOD's factor is made in single precision,
+# the preconditioner of CG (at the two membranes' 1M: the factorization 2.4 against 3.3 s, a
+# solve 0.105 against 0.14 s, the same CG iterations per Newton step)
+DIRECT_RTOL = 1e-12  # solve(rtol=0) with a single-precision factor: CG to this relative residual
 
 
 class IndefiniteHessian(RuntimeError):
@@ -47,6 +53,51 @@ class IndefiniteHessian(RuntimeError):
 
 class NotSolved(RuntimeError):
     """An iterative solve did not reach its tolerance."""
+
+
+def silence_cholmod():
+    """CHOLMOD prints its warnings on stdout (a matrix not positive definite, an answer the
+    solvers here expect and report): SuiteSparse's print function set to none (read from
+    the loaded libsuitesparseconfig; nothing where /proc is missing)."""
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = {line.split()[-1] for line in fh if "libsuitesparseconfig" in line}
+    except OSError:  # pragma: no cover - not Linux
+        return
+    for path in paths:
+        ctypes.CDLL(path).SuiteSparse_config_printf_func_set(None)
+
+
+if HAVE_CHOLMOD:
+    silence_cholmod()
+
+
+def cholmod_factor(A, ordering="amd", beta=0.0, dtype=np.float64):
+    """CHOLMOD's factor L L^T = P (A + beta I) P^T of the symmetric CSC matrix A (its lower
+    triangle read), in dtype's precision; IndefiniteHessian where A + beta I is not
+    positive definite (in that precision)."""
+    try:
+        factor = CholeskyFactor(A, lower=True, order=ordering)
+        return factor.factorize(values_in(A, dtype), beta=beta)
+    except CholmodNotPositiveDefiniteError as e:
+        raise IndefiniteHessian(str(e))
+
+
+def values_in(A, dtype):
+    """The CSC matrix A with its values in dtype (A itself where they are; else the values
+    alone copied, the index arrays shared)."""
+    if A.dtype == dtype:
+        return A
+    return sp.csc_matrix((A.data.astype(dtype), A.indices, A.indptr), shape=A.shape, copy=False)
+
+
+def factor_solve(factor, b):
+    """x = A^-1 b with CHOLMOD's factor of A, in b's precision (the factor's dtype inside).
+    CHOLMOD's solve warns where its rough reciprocal condition (min diag L / max diag L)^2 is
+    below n eps: not an error here (the Newton solver tests its own residuals)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CholmodWarning)
+        return factor.solve(b.astype(factor.dtype, copy=False)).astype(b.dtype, copy=False)
 
 
 def positive_diagonal(A):
@@ -67,6 +118,13 @@ class Cholmod:
     low-rank change); otherwise, or when CG needed more than half of them, it is
     factored anew.  rtol=0 asks for a direct solve.
 
+    single: the factor is made in single precision (half the factor's memory traffic in
+    each solve, a cheaper factorization) and serves only as CG's preconditioner: a
+    matrix just factored is solved by CG too, to rtol (DIRECT_RTOL for rtol=0).  Where
+    single precision does not serve (the factorization fails in it, or CG with a fresh
+    factor needs more than half of `reuse_iterations`: a condition number near 1/eps of
+    single precision), the solver factors in double from then on.
+
     prune: the factorization is given the entries significant in some matrix factored so
     far on the same pattern (NonzeroPattern); a caller whose matrices hold only entries
     significant in some earlier matrix (Problem's Newton matrices: the problem keeps them)
@@ -76,7 +134,8 @@ class Cholmod:
     test without a new factorization and solve's test for that same matrix (a direct
     solve); a caller that will not ask is_positive_definite (newton where J_h is
     certified convex) sets it False, and saves the copy (one value per pattern entry:
-    56 MB for the two membranes at 522k unknowns).
+    56 MB for the two membranes at 522k unknowns).  Only a double-precision factor
+    certifies: is_positive_definite factors in double.
 
     The fill-reducing ordering: CHOLMOD's `ordering` method, or, with geometric=True and
     the free dofs' coordinates from prepare(problem) (`coordinates`: computed for each
@@ -85,10 +144,10 @@ class Cholmod:
     A's), and a solve x = P^T L^-T L^-1 P b."""
     name = "cholmod"
 
-    def __init__(self, reuse_iterations=25, ordering="default", geometric=False):
-        self.factor = self.factored = None
+    def __init__(self, reuse_iterations=25, ordering="default", geometric=False, single=False):
+        self.symbolic = self.factor = self.factored = None  # the analysis; the numeric factor
         self.keep_factored, self.prune = True, True
-        self.ordering, self.geometric = ordering, geometric
+        self.ordering, self.geometric, self.single = ordering, geometric, single
         self.coordinates = self.perm = None  # () -> the free dofs' points; the nested dissection's order
         self.reordered = None  # with perm: P A P^T's lower triangle, its values positions in A.data
         self.reuse_iterations, self.stale = reuse_iterations, False
@@ -107,14 +166,14 @@ class Cholmod:
         points = self.coordinates() if self.coordinates else None
         if points is None or len(points) != A.shape[0]:  # (points of another problem)
             self.perm = None
-            self.factor = analyze(given, ordering_method=self.ordering)
+            self.symbolic = CholeskyFactor(given, lower=True, order=self.ordering)
         else:
             self.perm = nested_dissection(given, points)
             self.reordered = permuted_lower(given, self.perm)
             if not self.analyzed.all:
                 kept = np.flatnonzero(self.analyzed.kept).astype(index_type(A.data.size))
                 self.reordered.data = kept[self.reordered.data]
-            self.factor = analyze(self._given(A), ordering_method="natural")
+            self.symbolic = CholeskyFactor(self._given(A), lower=True, order="natural")
         self.analyses += 1
 
     def _given(self, A):
@@ -126,28 +185,37 @@ class Cholmod:
 
     def _solve(self, b):
         """x = A^-1 b with the factor of A (of P A P^T: x[perm] = (P A P^T)^-1 b[perm])."""
-        if self.perm is None:
-            return self.factor(b)
-        x = np.empty_like(b)
-        x[self.perm] = self.factor(b[self.perm])
-        return x
+        try:
+            if self.perm is None:
+                return factor_solve(self.factor, b)
+            x = np.empty_like(b)
+            x[self.perm] = factor_solve(self.factor, b[self.perm])
+            return x
+        except CholmodError as e:  # a zero pivot the factorization let through
+            raise IndefiniteHessian(str(e))
 
-    def _factor(self, A):
+    def _factor(self, A, single=None):
+        """A new numeric factor of A, from a copy of the symbolic analysis (CHOLMOD keeps a
+        factored supernodal factor in simplicial form), in single precision where `single`
+        (the solver's choice by default); the last factor is released first."""
+        single = self.single if single is None else single
+        self.factor = self.factored = None
         try:
             if self.analyzed is None or not self.analyzed.holds(A):
                 self.analyzed = NonzeroPattern(A, self.analyzed, self.prune)
-                self.factor = None
-            if self.factor is None:
-                self._analyze(A)
-            self.factored = None
-            given = self._given(A)
+                self.symbolic = None
+            if self.symbolic is None:
+                self._analyze(A)  # (a matrix without entries is not positive definite)
+            factor = self.symbolic.copy()
             with threads.factorization():
-                self.factor.cholesky_inplace(given)
+                factor.factorize(values_in(self._given(A), np.float32 if single else np.float64))
         except CholmodNotPositiveDefiniteError as e:
-            raise IndefiniteHessian(str(e))
-        if not np.all(self.factor.D() > 0):  # a simplicial LDL^T also factors indefinite matrices
-            raise IndefiniteHessian("the LDL^T factorization has a non-positive pivot")
-        self.factored = kept_values(A) if self.keep_factored else None
+            if not single or self.symbolic is None:
+                raise IndefiniteHessian(str(e))
+            self.single = False  # perhaps not positive definite by round-off in single precision
+            return self._factor(A)
+        self.factor = factor
+        self.factored = kept_values(A) if self.keep_factored and not single else None
         self.factorizations += 1
         self.stale = False
 
@@ -162,25 +230,33 @@ class Cholmod:
                 self.stale = its > self.reuse_iterations // 2
                 return x
         self._factor(A)
-        return self._solve(b)
+        if self.factor.dtype == np.float64:
+            return self._solve(b)
+        x, its = pcg(A, b, self._solve, rtol or DIRECT_RTOL, self.reuse_iterations // 2)
+        if x is None:  # a condition number beyond single precision's preconditioner
+            self.single = False
+            self._factor(A)
+            return self._solve(b)
+        self.iterations.append(its)
+        return x
 
     def is_positive_definite(self, A):
         """Whether A is positive definite: True without a new factorization when A = F + D,
         F the factored matrix and D positive semidefinite (then A >= F > 0; see
-        semidefinite_difference), else a new factorization of A (one numeric
-        factorization: the symbolic analysis is kept)."""
+        semidefinite_difference), else a new double-precision factorization of A (one
+        numeric factorization: the symbolic analysis is kept)."""
         A = symmetric_csc(A)
         if self.factored is not None and semidefinite_difference(A, self.factored):
             return True
         try:
-            self._factor(A)
+            self._factor(A, single=False)
         except IndefiniteHessian:
             return False
         return True
 
     def stats(self):
         return dict(factorizations=self.factorizations, cg_iterations=list(self.iterations),
-                    analyses=self.analyses)
+                    analyses=self.analyses, factor_precision="single" if self.single else "double")
 
 
 class NonzeroPattern:
@@ -329,9 +405,10 @@ def semidefinite_difference(A, F, zero=False):
     D = sp.csc_matrix((values, (local[:rows.size], local[rows.size:])), shape=(S.size, S.size))
     eps = 1e-14 * np.abs(A.diagonal()).max()
     try:
-        return bool(np.all(cholesky(D, beta=eps).D() > 0))
-    except CholmodNotPositiveDefiniteError:
+        cholmod_factor(D, beta=eps)
+    except IndefiniteHessian:
         return False
+    return True
 
 
 def pcg(A, b, M, rtol, maxiter):
@@ -661,7 +738,7 @@ def near_nullspace(problem):
 def describe():
     """Which direct solver is used and the BLAS it runs on (from the loaded libraries)."""
     if not HAVE_CHOLMOD:
-        return "SciPy SuperLU (scikit-sparse not installed)"
+        return "SciPy SuperLU (scikit-sparse 0.5 or later not installed)"
     try:
         with open("/proc/self/maps") as fh:
             libs = {line.split()[-1] for line in fh if "blas" in line}
@@ -696,7 +773,8 @@ def make_solver(name="auto", n=0, dim=2, symmetric=True):
     above it (a smaller factor than AMD's for a longer analysis: 2.4 s more at 523k, 5.1 s at
     1M), 3D ones by CHOLMOD's default (AMD, METIS when the fill is large).  A solver object
     (with solve, is_positive_definite, stats and name, e.g. nitsche.distributed's) is used
-    as given."""
+    as given.  Above SINGLE_THRESHOLD unknowns CHOLMOD's factor is made in single precision
+    (Cholmod's `single`)."""
     if hasattr(name, "solve"):
         return name
     if not (isinstance(name, str) and (name == "auto" or name in SOLVERS)):
@@ -718,10 +796,11 @@ def make_solver(name="auto", n=0, dim=2, symmetric=True):
         else:
             name = "cholmod" if HAVE_CHOLMOD else "superlu"
     if name == "cholmod" and not HAVE_CHOLMOD:
-        raise ValueError("solver 'cholmod' needs scikit-sparse (and libsuitesparse-dev); use 'superlu'")
+        raise ValueError("solver 'cholmod' needs scikit-sparse 0.5 or later (`make cholmod` builds it with "
+                         "SuiteSparse 7); use 'superlu'")
     if name != "cholmod":
         return SOLVERS[name]()
     if dim == 2:
-        return Cholmod(ordering="metis" if n > METIS_THRESHOLD_2D else "amd",
+        return Cholmod(ordering="metis" if n > METIS_THRESHOLD_2D else "amd", single=n > SINGLE_THRESHOLD,
                        geometric=n > GEOMETRIC_THRESHOLD_2D and not METIS_THRESHOLD_2D < n <= METIS_KEPT_2D)
-    return Cholmod(ordering="default", geometric=n > GEOMETRIC_THRESHOLD_3D)
+    return Cholmod(ordering="default", geometric=n > GEOMETRIC_THRESHOLD_3D, single=n > SINGLE_THRESHOLD)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from nitsche.linalg import HAVE_CHOLMOD, Cholmod, symmetric_csc
+from nitsche.linalg import HAVE_CHOLMOD, Cholmod, IndefiniteHessian, symmetric_csc
 
 pytestmark = pytest.mark.skipif(not HAVE_CHOLMOD, reason="scikit-sparse is not installed")
 
@@ -63,7 +63,7 @@ def two_fields(n, coupled):
 
 
 def test_cholmod_factors_the_nonzero_entries_and_analyzes_again_only_when_they_grow():
-    from sksparse.cholmod import cholesky
+    from nitsche.linalg import cholmod_factor
     n = 12
     N = n * n
     b = np.random.default_rng(1).normal(size=2 * N)
@@ -85,7 +85,7 @@ def test_cholmod_factors_the_nonzero_entries_and_analyzes_again_only_when_they_g
     A = two_fields(n, np.arange(N // 3))
     lin_third = Cholmod()
     lin_third.solve(A, b)
-    assert lin_third.factor.L().nnz < 0.85 * cholesky(symmetric_csc(A)).L().nnz
+    assert lin_third.factor.nnz < 0.85 * cholmod_factor(symmetric_csc(A), "default").nnz
     # CG preconditioned by the kept factor on a matrix of the same pattern
     z = lin.solve(A2, b, rtol=1e-10)
     assert np.linalg.norm(A2 @ z - b) <= 1e-10 * np.linalg.norm(b) and lin.analyses == 2
@@ -129,7 +129,65 @@ def test_the_round_off_of_a_cancellation_is_left_out_of_the_factor_and_a_small_c
         lin = Cholmod(ordering="amd")
         x = lin.solve(A, b)
         assert np.linalg.norm(A @ x - b) <= 1e-12 * np.linalg.norm(b)
-        fill[name] = lin.factor.L().nnz
+        fill[name] = lin.factor.nnz
     lin = Cholmod(ordering="amd")
     lin.solve(five, b)
-    assert fill["round-off"] == lin.factor.L().nnz < fill["coupling"]
+    assert fill["round-off"] == lin.factor.nnz < fill["coupling"]
+
+
+def test_a_single_precision_factor_preconditions_cg_to_a_direct_solves_accuracy():
+    """single=True: the factor in single precision, every solve by CG with it (rtol=0: to
+    DIRECT_RTOL), the same solution as the double factor's direct solve; a later matrix by
+    CG on the kept factor; is_positive_definite factors in double."""
+    from nitsche.linalg import DIRECT_RTOL
+    A = laplacian(60)
+    b = np.random.default_rng(3).normal(size=A.shape[0])
+    single, double = Cholmod(single=True), Cholmod()
+    x, y = single.solve(A, b), double.solve(A, b)
+    assert single.factor.dtype == np.float32 and double.factor.dtype == np.float64
+    assert np.linalg.norm(A @ x - b) <= DIRECT_RTOL * np.linalg.norm(b)
+    assert np.abs(x - y).max() <= 1e-10 * np.abs(y).max()
+    assert 1 <= single.iterations[0] <= 6 and single.factored is None  # a single factor certifies nothing
+    A2 = A.copy()
+    rows = np.repeat(np.arange(A.shape[0]), np.diff(A.indptr))
+    A2.data[(A2.indices == rows) & (rows % 90 == 0)] += 0.5
+    z = single.solve(A2, b, rtol=1e-8)
+    assert np.linalg.norm(A2 @ z - b) <= 1e-8 * np.linalg.norm(b) and single.factorizations == 1
+    assert single.is_positive_definite(A2) and single.factor.dtype == np.float64 and single.factorizations == 2
+    assert single.stats()["factor_precision"] == "single" and double.stats()["factor_precision"] == "double"
+    with pytest.raises(IndefiniteHessian):
+        Cholmod(single=True).solve(A - 1.0 * sp.eye(A.shape[0]), b)
+
+
+def test_where_single_precision_does_not_serve_the_solver_factors_in_double():
+    """A matrix singular once rounded to single precision (the factorization fails in it),
+    and one whose condition number (about 6.5e8: the 1D Laplacian on 40,000 points) leaves
+    CG with a single factor short of a direct solve's accuracy in 12 iterations: each solved
+    to DIRECT_RTOL by a double factor, which the solver keeps from then on."""
+    from nitsche.linalg import DIRECT_RTOL
+    near = sp.csc_matrix(np.array([[1.0, 1 - 1e-9], [1 - 1e-9, 1.0]]))
+    n = 40_000
+    chain = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tocsc()
+    for A, factorizations in ((near, 1), (chain, 2)):  # (the single factorization failed; made, then CG)
+        b = A @ np.ones(A.shape[0])
+        lin = Cholmod(single=True)
+        x = lin.solve(A, b)
+        assert np.linalg.norm(A @ x - b) <= DIRECT_RTOL * np.linalg.norm(b)
+        assert lin.factorizations == factorizations and not lin.single and lin.factor.dtype == np.float64 and lin.stats()["factor_precision"] == "double"
+
+
+def test_large_2d_problems_take_a_single_precision_factor():
+    from nitsche.linalg import SINGLE_THRESHOLD, make_solver
+    assert make_solver("cholmod", SINGLE_THRESHOLD + 1, dim=2).single
+    assert not make_solver("auto", SINGLE_THRESHOLD, dim=2).single
+    assert make_solver("cholmod", SINGLE_THRESHOLD + 1, dim=3).single
+
+
+def test_cholmod_prints_nothing_where_a_matrix_is_not_positive_definite(capfd):
+    """CHOLMOD's own warning ("not positive definite") is not printed: the solver reports it."""
+    import ctypes
+    A = laplacian(10) - 2.0 * sp.eye(100)
+    assert not Cholmod().is_positive_definite(A)
+    ctypes.CDLL(None).fflush(None)  # C's stdout buffer
+    out, err = capfd.readouterr()
+    assert "CHOLMOD" not in out + err
