@@ -36,7 +36,7 @@ system-deps:
 # as Debian trixie ships it (its checksum checked), built with CMake into $(VENV)/suitesparse
 # (the libraries scikit-sparse links: CHOLMOD and AMD, CAMD, COLAMD, CCOLAMD, BTF, KLU, UMFPACK,
 # SPQR; a few minutes on 2 cores), then scikit-sparse 0.5 from its source against it (rpath
-# to that prefix).  The build tree is removed afterwards.
+# to that prefix; its factors kept supernodal, below).  The build tree is removed afterwards.
 SUITESPARSE_VERSION ?= 7.10.1
 SUITESPARSE_SHA256 ?= f33dc4dbbaa16711861bb986604ac7ea15d949276951c706c6997d5567cebfcc
 SUITESPARSE_URL ?= http://deb.debian.org/debian/pool/main/s/suitesparse/suitesparse_$(SUITESPARSE_VERSION)+dfsg.orig.tar.xz
@@ -44,6 +44,7 @@ SUITESPARSE_PROJECTS = suitesparse_config;amd;camd;colamd;ccolamd;btf;klu;cholmo
 SUITESPARSE_PREFIX = $(abspath $(VENV))/suitesparse
 SUITESPARSE_BUILD = $(abspath $(VENV))/build-suitesparse
 SCIKIT_SPARSE_VERSION ?= 0.5.0
+SCIKIT_SPARSE_SOURCE = $(SUITESPARSE_BUILD)/scikit_sparse-$(SCIKIT_SPARSE_VERSION)
 $(VENV)/.cholmod-installed:
 	rm -rf $(SUITESPARSE_BUILD) && mkdir -p $(SUITESPARSE_BUILD)/src
 	$(PY) -c "import hashlib, sys, urllib.request; data = urllib.request.urlopen(sys.argv[1]).read(); \
@@ -57,9 +58,17 @@ $(VENV)/.cholmod-installed:
 	  -DBLA_VENDOR=OpenBLAS -DBUILD_STATIC_LIBS=OFF -DSUITESPARSE_DEMOS=OFF -DBUILD_TESTING=OFF > $(SUITESPARSE_BUILD)/cmake.log
 	cmake --build $(SUITESPARSE_BUILD)/build -j $$(nproc) > $(SUITESPARSE_BUILD)/build.log
 	cmake --install $(SUITESPARSE_BUILD)/build > $(SUITESPARSE_BUILD)/install.log
+	$(PIP) download -q --no-cache-dir --no-deps --no-binary scikit-sparse "scikit-sparse==$(SCIKIT_SPARSE_VERSION)" \
+	  -d $(SUITESPARSE_BUILD)
+	tar xzf $(SUITESPARSE_BUILD)/scikit_sparse-$(SCIKIT_SPARSE_VERSION).tar.gz -C $(SUITESPARSE_BUILD)
+	@# scikit-sparse 0.5's factorize turns a supernodal factor into a simplicial one (CHOLMOD's
+	@# final_super = false): a copy in a larger form (an index per entry) made while the
+	@# supernodal one is held, and slower solves; kept supernodal instead, as CHOLMOD makes it
+	sed -i 's/self._cm.final_super = False/self._cm.final_super = True/' $(SCIKIT_SPARSE_SOURCE)/src/sksparse/cholmod.pyx
+	grep -q "self._cm.final_super = True" $(SCIKIT_SPARSE_SOURCE)/src/sksparse/cholmod.pyx
 	SUITESPARSE_INCLUDE_DIR=$(SUITESPARSE_PREFIX)/include/suitesparse SUITESPARSE_LIBRARY_DIR=$(SUITESPARSE_PREFIX)/lib \
 	  LDFLAGS="-Wl,-rpath,$(SUITESPARSE_PREFIX)/lib" \
-	  $(PIP) install -q --no-cache-dir --no-binary scikit-sparse --force-reinstall --no-deps "scikit-sparse==$(SCIKIT_SPARSE_VERSION)"
+	  $(PIP) install -q --no-cache-dir --force-reinstall --no-deps $(SCIKIT_SPARSE_SOURCE)
 	$(PY) -c "import sksparse.cholmod, nitsche.linalg as l; assert l.HAVE_CHOLMOD, 'scikit-sparse >= 0.5 not importable'"
 	rm -rf $(SUITESPARSE_BUILD)
 	touch $@
