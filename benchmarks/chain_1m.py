@@ -9,7 +9,8 @@ wall and CPU time (imports included), its peak resident memory (ru_maxrss: with 
 benchmark's lists of the fields and their energy, `referee`, after the chain) and the
 chain's own (`solve_peak_mb`: VmHWM as the chain ends), the kernels' compilation or
 loading within it (`compile`), the Newton iterations per level, J_h and the load average.
-Warm the kernel store of each checkout first (a run with --top 4).
+Warm the kernel store of each checkout first (a run with --top 4). A checkout runs with its
+own environment's Python (ROOT/.venv) where it has one.
 
 --linear adds to each repetition one linear solve of the same size (peers.py's linear
 code on the finest n x n tensor mesh: a Laplace assembly per field and one CHOLMOD

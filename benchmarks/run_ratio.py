@@ -17,6 +17,8 @@ machine disturbs least).  Writes benchmarks/results/run_ratio.json (--name: anot
 
     python benchmarks/run_ratio.py --cases obstacle two-membrane --level 6 --repeat 3
     python benchmarks/run_ratio.py --before /tmp/before   # an earlier version side by side
+    (a checkout runs with its own environment's Python, CHECKOUT/.venv, where it has one: e.g.
+    `ln -s /tmp/old-venv /tmp/before/.venv` for a version built against other libraries)
 """
 import argparse
 import json

@@ -42,8 +42,9 @@ GEOMETRIC_THRESHOLD_3D = 5_000   # of the dofs' points (nitsche.ordering) where 
 # the 523k obstacle's peak at 1.5x the linear solve's)
 METIS_KEPT_2D = 750_000
 SINGLE_THRESHOLD = 200_000  # above this many unknowns CHOLMOD's factor is made in single precision,
-# the preconditioner of CG (at the two membranes' 1M: the factorization 2.4 against 3.3 s, a
-# solve 0.105 against 0.14 s, the same CG iterations per Newton step)
+# the preconditioner of CG (the two membranes' first 1M Newton matrix: the factorization 0.93
+# against 1.54 s in double, a solve 0.090 against 0.139 s, the factor 342 against 597 MB; the
+# same CG iterations per Newton step)
 DIRECT_RTOL = 1e-12  # solve(rtol=0) with a single-precision factor: CG to this relative residual
 
 
@@ -195,9 +196,10 @@ class Cholmod:
             raise IndefiniteHessian(str(e))
 
     def _factor(self, A, single=None):
-        """A new numeric factor of A, from a copy of the symbolic analysis (CHOLMOD keeps a
-        factored supernodal factor in simplicial form), in single precision where `single`
-        (the solver's choice by default); the last factor is released first."""
+        """A new numeric factor of A, from a copy of the symbolic analysis (a factor that
+        scikit-sparse turned simplicial, as a build other than `make cholmod`'s does, would be
+        factored again by CHOLMOD's slow simplicial method), in single precision where
+        `single` (the solver's choice by default); the last factor is released first."""
         single = self.single if single is None else single
         self.factor = self.factored = None
         try:
