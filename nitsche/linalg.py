@@ -73,13 +73,13 @@ if HAVE_CHOLMOD:
     silence_cholmod()
 
 
-def cholmod_factor(A, ordering="amd", beta=0.0, dtype=np.float64):
+def cholmod_factor(A, ordering="amd", beta=0.0):
     """CHOLMOD's factor L L^T = P (A + beta I) P^T of the symmetric CSC matrix A (its lower
-    triangle read), in dtype's precision; IndefiniteHessian where A + beta I is not
-    positive definite (in that precision)."""
+    triangle read), in A's precision; IndefiniteHessian where A + beta I is not positive
+    definite."""
     try:
         factor = CholeskyFactor(A, lower=True, order=ordering)
-        return factor.factorize(values_in(A, dtype), beta=beta)
+        return factor.factorize(A, beta=beta)
     except CholmodNotPositiveDefiniteError as e:
         raise IndefiniteHessian(str(e))
 
