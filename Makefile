@@ -120,7 +120,12 @@ test: install
 test-full: install
 	$(VENV)/bin/pytest -q --full
 
-bench: install
+# the peers of the benchmarks (NGSolve, matplotlib): pip install -e ".[bench]"
+$(VENV)/.bench-installed: $(VENV)/.installed pyproject.toml
+	$(PIP) install -q -e ".[bench]"
+	touch $@
+
+bench: install $(VENV)/.bench-installed
 	$(PY) benchmarks/obstacle_assembly.py
 
 # the API reference, generated from the docstrings (docs/api), warnings as errors: $(OUT)/docs/index.html
