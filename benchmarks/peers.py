@@ -736,9 +736,8 @@ def plot_scaling(rows):
         ax[1].loglog(n, [r.get("solve_peak_mb", r["peak_mb"]) / 1024 for r in rr], mk, label=problem)
     n = np.array([1e4, 1e6])
     ax[0].loglog(n, 20 * n / 1e6, "k--", lw=0.8, label="linear in N (20 s at 1M)")
-    for seconds, problem in ((15, "obstacle"), (25, "two membranes")):  # issue 16's 1M targets
-        ax[0].axhline(seconds, color="r", lw=0.6, ls=":" if seconds == 15 else "-",
-                      label=f"target at 1M, {problem}: {seconds} s")
+    for seconds, problem, style in ((15, "obstacle", ":"), (25, "two membranes", "-")):  # issue 16's 1M targets
+        ax[0].axhline(seconds, color="r", lw=0.6, ls=style, label=f"target at 1M, {problem}: {seconds} s")
     ax[0].set_xlabel("unknowns")
     ax[0].set_ylabel("seconds (nested chain; 2D P1, 3D Q1/Hex1)")
     ax[1].set_xlabel("unknowns")
